@@ -1,0 +1,28 @@
+# Two commands a fresh machine needs: `make demo` and `make test`. Each creates .venv if missing.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+OUT ?= out
+
+.PHONY: demo test bench lint clean
+
+$(BIN)/dualarm-mpc: pyproject.toml
+	test -d $(VENV) || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q -e '.[test]'
+	touch $@
+
+demo: $(BIN)/dualarm-mpc
+	mkdir -p $(OUT)
+	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --out $(OUT)/plan.json --plot $(OUT)/plan.png
+
+test: $(BIN)/dualarm-mpc
+	$(BIN)/python -m pytest -q
+
+bench: $(BIN)/dualarm-mpc
+	$(BIN)/python bench/table2.py
+
+lint: $(BIN)/dualarm-mpc
+	$(BIN)/ruff check dualarm_mpc tests bench
+
+clean:
+	rm -rf $(VENV) $(OUT)
