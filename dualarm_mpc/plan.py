@@ -1,0 +1,161 @@
+"""Plan: the planner's output — a trajectory of the MLD system plus how each sequential step went.
+
+Array conventions (index order is the paper's): arm ``i`` = 0 is arm 1 (right), ``i`` = 1 is arm 2
+(left); object ``j`` follows the scenario's object list; step ``k`` = 0..K.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """States k = 0..K, inputs k = 0..K-1, of the MLD system (eqs. 1, 8)."""
+
+    hand_pos: np.ndarray  # (K+1, 2, 2)
+    hand_vel: np.ndarray  # (K+1, 2, 2)
+    force: np.ndarray  # (K, 2, 2)
+    object_pos: np.ndarray  # (K+1, N, 2)
+    object_vel: np.ndarray  # (K+1, N, 2)
+    grasp: np.ndarray  # (K+1, 2, N) of 0/1: η_ij(k)
+
+    @property
+    def steps(self) -> int:
+        """K, the number of transitions."""
+        return len(self.force)
+
+    def then(self, other: Trajectory) -> Trajectory:
+        """This trajectory followed by ``other``, whose step 0 repeats this one's last step."""
+        return Trajectory(
+            *(
+                np.concatenate([a, b[1:]]) if name != "force" else np.concatenate([a, b])
+                for name, a, b in zip(FIELDS, self.arrays(), other.arrays(), strict=True)
+            )
+        )
+
+    def arrays(self) -> tuple[np.ndarray, ...]:
+        return tuple(getattr(self, name) for name in FIELDS)
+
+    def to_json(self) -> dict:
+        return {
+            name: (a.astype(int) if name == "grasp" else np.round(a, 9)).tolist()
+            for name, a in zip(FIELDS, self.arrays(), strict=True)
+        }
+
+    @staticmethod
+    def from_json(data: dict) -> Trajectory:
+        n = len(data["object_pos"][0])
+        arrays = []
+        for name in FIELDS:
+            a = np.asarray(data[name], dtype=int if name == "grasp" else float)
+            if a.size == 0:  # an empty list loses its trailing dimensions
+                a = a.reshape((0, 2, n) if name == "grasp" else (0, 2, 2))
+            arrays.append(a)
+        return Trajectory(*arrays)
+
+
+FIELDS = ("hand_pos", "hand_vel", "force", "object_pos", "object_vel", "grasp")
+
+
+@dataclass(frozen=True)
+class Segment:
+    """One sequential step of Algorithm 1."""
+
+    objects: list[int]  # scenario indices of the n_o objects in the program
+    delivered: list[int]  # the ones at rest in their goal at the end of the step
+    horizon: int
+    status: str
+    solve_time_s: float
+    cost: float
+    binaries: int = 0
+    gap: float = 0.0
+
+    def to_json(self) -> dict:
+        return {
+            "objects": self.objects,
+            "delivered": self.delivered,
+            "horizon": self.horizon,
+            "status": self.status,
+            "solve_time_s": round(self.solve_time_s, 4),
+            "cost": round(self.cost, 9),
+            "binaries": self.binaries,
+            "gap": self.gap,
+        }
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The whole task: sequential steps joined without repeating the joining step."""
+
+    dt: float
+    rule: int
+    delivery: str
+    goals: dict[str, list[float]]
+    objects: list[dict]  # {"name", "goal", "grasp_half_size"}, index j
+    workspace: list[float]
+    trajectory: Trajectory
+    delivered_step: list[int | None]
+    segments: list[Segment] = field(default_factory=list)
+    verified: bool = False
+
+    @property
+    def total_cost(self) -> float:
+        return float(sum(s.cost for s in self.segments))
+
+    @property
+    def total_solve_time_s(self) -> float:
+        return float(sum(s.solve_time_s for s in self.segments))
+
+    def to_json(self) -> dict:
+        return {
+            "dt": self.dt,
+            "rule": self.rule,
+            "delivery": self.delivery,
+            "goals": self.goals,
+            "objects": self.objects,
+            "workspace": self.workspace,
+            "trajectory": self.trajectory.to_json(),
+            "delivered_step": self.delivered_step,
+            "segments": [s.to_json() for s in self.segments],
+            "total_cost": round(self.total_cost, 9),
+            "total_solve_time_s": round(self.total_solve_time_s, 4),
+            "verified": self.verified,
+        }
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json(), indent=1))
+
+    @staticmethod
+    def from_json(data: dict) -> Plan:
+        return Plan(
+            dt=data["dt"],
+            rule=data["rule"],
+            delivery=data["delivery"],
+            goals=data["goals"],
+            objects=data["objects"],
+            workspace=data["workspace"],
+            trajectory=Trajectory.from_json(data["trajectory"]),
+            delivered_step=data["delivered_step"],
+            segments=[
+                Segment(**{k: v for k, v in s.items()}) for s in data.get("segments", [])
+            ],
+            verified=data.get("verified", False),
+        )
+
+    @staticmethod
+    def load(path: str | Path) -> Plan:
+        return Plan.from_json(json.loads(Path(path).read_text()))
+
+
+@dataclass(frozen=True)
+class TimedTrajectory:
+    """A trajectory anchored in simulation time: step k happens at ``t0 + k·dt``."""
+
+    t0: float
+    dt: float
+    trajectory: Trajectory

@@ -1,0 +1,300 @@
+"""Scenario: the typed description of one table-top task (Table I of the paper), loaded from YAML.
+
+A scenario file is read into the dataclasses below; every field can then be overridden by a YAML
+mapping (the CLI's ``--set``). Any bad file or value raises :class:`ScenarioError` naming the field,
+e.g. ``objects[3].position: expected 2 numbers, got 'abc'``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+BUILTIN = ("table1_vc", "table1_vd")
+
+
+class ScenarioError(ValueError):
+    """A scenario file or override has a bad field; the message starts with the field's path."""
+
+
+@dataclass
+class ObjectSpec:
+    """One object: where it starts, which goal it belongs to, the grasp box H_ij of eq. (11)."""
+
+    name: str = ""
+    position: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    goal: str = ""
+    grasp_half_size: float = 0.05
+
+
+@dataclass
+class RandomObjects:
+    """§V-D: ``count`` objects uniform in ``region`` from ``seed``; goals assigned round-robin."""
+
+    count: int = 10
+    region: list[float] = field(default_factory=lambda: [-0.25, 0.25, -0.25, 0.25])
+    grasp_half_size: float = 0.05
+
+
+@dataclass
+class SolverOptions:
+    """Options of one MILP solve (design §3)."""
+
+    backend: str = "highs"  # "highs", or "gurobi" / "mosek" through Drake when licensed
+    time_limit_s: float = 30.0
+    mip_rel_gap: float = 1e-4
+    threads: int = 1
+    max_horizon: int = 40
+
+
+@dataclass
+class Event:
+    """An environment change in closed loop: at ``time`` move an object or a goal."""
+
+    time: float = 0.0
+    kind: str = "move_object"  # or "move_goal"
+    target: str = ""  # object name or goal name
+    position: list[float] = field(default_factory=list)  # move_object: new [x, y]
+    box: list[float] = field(default_factory=list)  # move_goal: new [xmin, xmax, ymin, ymax]
+
+
+@dataclass
+class Scenario:
+    """Everything the planner and the simulation need; units are metres, seconds and Δt steps."""
+
+    name: str = "scenario"
+    dt: float = 1.0
+    workspace: list[float] = field(default_factory=lambda: [-0.9, 0.9, 0.0, 0.9])
+    hand_start: list[list[float]] = field(default_factory=lambda: [[0.1, 0.0], [-0.1, 0.0]])
+    arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, 0.3], [-0.3, 0.3]])
+    max_speed: float = 0.2
+    max_force: float = 0.1
+    hand_gap: float = 0.1  # eq. (16): x_arm2 + hand_gap <= x_arm1
+    goals: dict[str, list[float]] = field(default_factory=dict)
+    objects: list[ObjectSpec] = field(default_factory=list)
+    random_objects: RandomObjects | None = None
+    seed: int = 0
+    rule: int = 2
+    m_o: int = 2  # objects delivered per sequential step (eq. 13)
+    n_o: int = 6  # objects considered per sequential step
+    delivery: str = "reach"  # "reach" (paper, ◇θ) or "rest" (in the goal and at rest at T)
+    task_form: str = "counting"  # "counting" (Σ ev_j ≥ m_o) or "subsets" (eq. 13 literally)
+    rules: list[str] = field(default_factory=list)  # extra LTL rules, text syntax
+    state_weight: float = 0.0  # optional ‖v_hand‖₁ penalty next to cost (17)
+    pruning: bool = True
+    solver: SolverOptions = field(default_factory=SolverOptions)
+    events: list[Event] = field(default_factory=list)
+    table_friction: float = 0.02
+    object_size: float = 0.05
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.objects)
+
+
+# --- loading -----------------------------------------------------------------------------------
+
+
+def _convert(value, hint, path: str):
+    """Convert plain YAML data to ``hint``, naming ``path`` in any error."""
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        return None if value is None else _convert(value, args[0], path)
+    if dataclasses.is_dataclass(hint):
+        if not isinstance(value, dict):
+            raise ScenarioError(f"{path or 'scenario'}: expected a mapping, got {value!r}")
+        return _build(hint, value, path)
+    if origin is list:
+        (item,) = typing.get_args(hint)
+        if not isinstance(value, list):
+            raise ScenarioError(f"{path}: expected a list, got {value!r}")
+        return [_convert(v, item, f"{path}[{i}]") for i, v in enumerate(value)]
+    if origin is dict:
+        _, item = typing.get_args(hint)
+        if not isinstance(value, dict):
+            raise ScenarioError(f"{path}: expected a mapping, got {value!r}")
+        return {str(k): _convert(v, item, f"{path}.{k}") for k, v in value.items()}
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ScenarioError(f"{path}: expected a number, got {value!r}")
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ScenarioError(f"{path}: expected an integer, got {value!r}")
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ScenarioError(f"{path}: expected true or false, got {value!r}")
+        return value
+    if hint is str:
+        if not isinstance(value, str | int | float):
+            raise ScenarioError(f"{path}: expected text, got {value!r}")
+        return str(value)
+    raise TypeError(f"unsupported schema type {hint!r} at {path}")
+
+
+def _build(cls, data: dict, path: str, base=None):
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(str(k) for k in set(data) - names)
+    if unknown:
+        where = f"{path}." if path else ""
+        raise ScenarioError(f"{where}{unknown[0]}: unknown field (known: {', '.join(sorted(names))})")
+    obj = base if base is not None else cls()
+    for key, value in data.items():
+        sub = f"{path}.{key}" if path else key
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(hints[key]) or (
+            current is not None and dataclasses.is_dataclass(current) and isinstance(value, dict)
+        ):
+            if current is None:
+                current = _convert(value, hints[key], sub)
+            else:
+                _build(type(current), value if isinstance(value, dict) else {}, sub, current)
+                if not isinstance(value, dict):
+                    raise ScenarioError(f"{sub}: expected a mapping, got {value!r}")
+            setattr(obj, key, current)
+        else:
+            setattr(obj, key, _convert(value, hints[key], sub))
+    return obj
+
+
+def _yaml(text: str, where: str) -> dict:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise ScenarioError(f"{where}: not valid YAML: {err}") from err
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{where}: expected a mapping of scenario fields, got {data!r}")
+    return data
+
+
+def scenario_path(name_or_path: str) -> Path:
+    """A built-in scenario name (``table1_vc``, ``table1_vd``) or a path to a YAML file."""
+    if name_or_path in BUILTIN:
+        return Path(str(resources.files("dualarm_mpc.scenarios") / f"{name_or_path}.yaml"))
+    path = Path(name_or_path)
+    if not path.is_file():
+        raise ScenarioError(
+            f"scenario: {name_or_path!r} is neither a file nor one of {', '.join(BUILTIN)}"
+        )
+    return path
+
+
+def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Scenario:
+    """Load a scenario file, apply ``overrides`` (a mapping or YAML text), then validate it."""
+    path = scenario_path(name_or_path)
+    scenario = _build(Scenario, _yaml(path.read_text(), str(path)), "")
+    return apply_overrides(scenario, overrides)
+
+
+def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:
+    """A copy of ``scenario`` with the fields in ``overrides`` replaced, objects resolved, checked."""
+    scenario = dataclasses.replace(
+        scenario,
+        solver=dataclasses.replace(scenario.solver),
+        objects=list(scenario.objects),
+        goals=dict(scenario.goals),
+    )
+    if isinstance(overrides, str):
+        overrides = _yaml(overrides, "override")
+    if overrides:
+        _build(Scenario, overrides, "", scenario)
+    if scenario.random_objects is not None:  # the objects follow from (random_objects, seed)
+        scenario.objects = random_objects(scenario.random_objects, list(scenario.goals), scenario.seed)
+    validate(scenario)
+    return scenario
+
+
+def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> list[ObjectSpec]:
+    """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin (design §5)."""
+    rng = np.random.default_rng(seed)
+    xmin, xmax, ymin, ymax = spec.region
+    xy = rng.uniform([xmin, ymin], [xmax, ymax], size=(spec.count, 2))
+    return [
+        ObjectSpec(
+            name=f"object{j + 1}",
+            position=[round(float(x), 4), round(float(y), 4)],
+            goal=goal_names[j % len(goal_names)],
+            grasp_half_size=spec.grasp_half_size,
+        )
+        for j, (x, y) in enumerate(xy)
+    ]
+
+
+def _box(value: list[float], path: str) -> None:
+    if len(value) != 4:
+        raise ScenarioError(f"{path}: expected [xmin, xmax, ymin, ymax], got {value!r}")
+    if not (value[0] < value[1] and value[2] < value[3]):
+        raise ScenarioError(f"{path}: empty box {value!r} (need xmin < xmax and ymin < ymax)")
+
+
+def _point(value: list[float], path: str) -> None:
+    if len(value) != 2:
+        raise ScenarioError(f"{path}: expected [x, y], got {value!r}")
+
+
+def validate(s: Scenario) -> None:
+    """Check values that types alone cannot; each error names its field."""
+    for key in ("dt", "max_speed", "max_force", "object_size"):
+        if getattr(s, key) <= 0:
+            raise ScenarioError(f"{key}: must be positive, got {getattr(s, key)!r}")
+    if s.hand_gap < 0:
+        raise ScenarioError(f"hand_gap: must be >= 0, got {s.hand_gap!r}")
+    _box(s.workspace, "workspace")
+    for name, key in (("hand_start", s.hand_start), ("arm_bases", s.arm_bases)):
+        if len(key) != 2:
+            raise ScenarioError(f"{name}: expected two points (arm 1 = right, arm 2 = left)")
+        for i, p in enumerate(key):
+            _point(p, f"{name}[{i}]")
+    if not s.goals:
+        raise ScenarioError("goals: at least one goal region is needed")
+    for name, box in s.goals.items():
+        _box(box, f"goals.{name}")
+    if not s.objects:
+        raise ScenarioError("objects: no objects (give objects or random_objects)")
+    names = set()
+    for j, o in enumerate(s.objects):
+        _point(o.position, f"objects[{j}].position")
+        if o.goal not in s.goals:
+            raise ScenarioError(
+                f"objects[{j}].goal: {o.goal!r} is not a goal (goals: {', '.join(s.goals)})"
+            )
+        if o.grasp_half_size <= 0:
+            raise ScenarioError(f"objects[{j}].grasp_half_size: must be positive")
+        if not o.name or o.name in names:
+            raise ScenarioError(f"objects[{j}].name: missing or repeated name {o.name!r}")
+        names.add(o.name)
+    if s.rule not in (1, 2):
+        raise ScenarioError(f"rule: must be 1 (no-throw) or 2 (no-juggle, no-swap), got {s.rule!r}")
+    if s.delivery not in ("reach", "rest"):
+        raise ScenarioError(f"delivery: must be 'reach' or 'rest', got {s.delivery!r}")
+    if s.task_form not in ("counting", "subsets"):
+        raise ScenarioError(f"task_form: must be 'counting' or 'subsets', got {s.task_form!r}")
+    if not 1 <= s.m_o <= s.n_o:
+        raise ScenarioError(f"m_o: need 1 <= m_o <= n_o, got m_o={s.m_o}, n_o={s.n_o}")
+    if s.solver.backend not in ("highs", "gurobi", "mosek"):
+        raise ScenarioError(f"solver.backend: unknown backend {s.solver.backend!r}")
+    if s.solver.time_limit_s <= 0:
+        raise ScenarioError("solver.time_limit_s: must be positive")
+    for e, ev in enumerate(s.events):
+        if ev.kind == "move_object":
+            if ev.target not in names:
+                raise ScenarioError(f"events[{e}].target: no object named {ev.target!r}")
+            _point(ev.position, f"events[{e}].position")
+        elif ev.kind == "move_goal":
+            if ev.target not in s.goals:
+                raise ScenarioError(f"events[{e}].target: no goal named {ev.target!r}")
+            _box(ev.box, f"events[{e}].box")
+        else:
+            raise ScenarioError(f"events[{e}].kind: must be 'move_object' or 'move_goal'")
