@@ -1,0 +1,261 @@
+"""Tests for dualarm_mpc.ltl: construction, parser, printer round trip, NNF, placeholders."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from strategies import formulas, traces
+
+from dualarm_mpc.evaluate import truth_table
+from dualarm_mpc.ltl import (
+    FALSE,
+    TRUE,
+    WX,
+    Always,
+    And,
+    Atom,
+    Const,
+    Eventually,
+    F,
+    Formula,
+    G,
+    Implies,
+    LTLSyntaxError,
+    Next,
+    Not,
+    Or,
+    R,
+    Release,
+    U,
+    Until,
+    WeakNext,
+    X,
+    atoms,
+    conj,
+    disj,
+    eta,
+    nnf,
+    parse,
+    placeholders,
+    substitute,
+    theta,
+)
+
+a, b, c = Atom("a"), Atom("b"), Atom("c")
+GROUND = [a, b, eta(1, 3), theta(2)]
+ALL_ATOMS = [*GROUND, Atom("Xa"), Atom("WX_1"), eta("i", "j"), theta("j"), Atom("p_1", (2, "l"))]
+FAST = settings(max_examples=200, deadline=None)
+
+
+# --- construction ---------------------------------------------------------------------------------
+
+
+def test_python_api_builds_the_same_nodes_as_text() -> None:
+    rule = G((eta(1, 3) & WX(~eta(1, 3))) >> WX(theta(3)))
+    assert rule == parse("G(eta[1,3] & WX !eta[1,3] -> WX theta[3])")
+    assert a | b == Or((a, b))
+    assert ~a == Not(a)
+    assert (X(a), F(a), U(a, b), R(a, b)) == (Next(a), Eventually(a), Until(a, b), Release(a, b))
+    assert (TRUE, FALSE) == (Const(True), Const(False))
+
+
+def test_nodes_are_hashable_and_structural() -> None:
+    assert len({eta(1, 3), Atom("eta", (1, 3)), parse("eta[1,3]")}) == 1
+    assert Next(a) != WeakNext(a)
+    assert hash(G(a & b)) == hash(parse("G(a & b)"))
+
+
+def test_conj_disj() -> None:
+    assert (conj([]), disj([])) == (TRUE, FALSE)
+    assert conj([a]) == a == disj([a])
+    assert conj(x for x in (a, b, c)) == And((a, b, c))
+    assert disj([a, b]) == Or((a, b))
+
+
+@pytest.mark.parametrize(
+    "build",
+    [
+        lambda: And((a,)),
+        lambda: Or(()),
+        lambda: Atom("G"),
+        lambda: Atom("1a"),
+        lambda: Atom("eta", (True,)),
+        lambda: Atom("eta", (-1,)),
+        lambda: Atom("eta", ("i j",)),
+    ],
+)
+def test_constructors_reject_bad_input(build) -> None:
+    with pytest.raises(ValueError):
+        build()
+
+
+def test_constructors_reject_non_formulas() -> None:
+    with pytest.raises(TypeError):
+        G("a")  # type: ignore[arg-type]
+    with pytest.raises(TypeError):
+        Const(1)  # type: ignore[arg-type]
+
+
+# --- parser ---------------------------------------------------------------------------------------
+
+
+def test_paper_rules() -> None:
+    e12, e22 = eta(1, 2), eta(2, 2)
+    assert parse("G((eta[1,2] -> WX !eta[2,2]) & (eta[2,2] -> WX !eta[1,2]))") == G(
+        Implies(e12, WX(~e22)) & Implies(e22, WX(~e12))
+    )
+    assert parse("F theta[1] & F theta[2] | F theta[3]") == Or(
+        (And((F(theta(1)), F(theta(2)))), F(theta(3)))
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("a & b & c", And((a, b, c))),
+        ("a | b | c", Or((a, b, c))),
+        ("(a & b) & c", And((And((a, b)), c))),
+        ("a | b & c", Or((a, And((b, c))))),
+        ("a & b -> c | a", Implies(And((a, b)), Or((c, a)))),
+        ("a -> b -> c", Implies(a, Implies(b, c))),
+        ("a U b R c", Until(a, Release(b, c))),
+        ("a U b & c", And((Until(a, b), c))),
+        ("!a U b", Until(Not(a), b)),
+        ("G a U b", Until(G(a), b)),
+        ("G F !a", G(F(Not(a)))),
+        ("~X a", Not(X(a))),
+        ("N a", WX(a)),
+        ("X true | false", Or((X(TRUE), FALSE))),
+        ("Xa & WXb", And((Atom("Xa"), Atom("WXb")))),
+        ("  theta[ j ] ", theta("j")),
+        ("eta[i,3]", eta("i", 3)),
+        ("p_1[2, l]", Atom("p_1", (2, "l"))),
+        ("((a))", a),
+    ],
+)
+def test_precedence_and_associativity(text: str, expected: Formula) -> None:
+    assert parse(text) == expected
+
+
+@pytest.mark.parametrize(
+    ("f", "text"),
+    [
+        (
+            G(eta(1, 3) & WX(~eta(1, 3)) >> WX(theta(3))),
+            "G(eta[1,3] & (WX !eta[1,3] -> WX theta[3]))",
+        ),
+        (
+            G((eta(1, 3) & WX(~eta(1, 3))) >> WX(theta(3))),
+            "G(eta[1,3] & WX !eta[1,3] -> WX theta[3])",
+        ),
+        (And((And((a, b)), c)), "(a & b) & c"),
+        (Implies(Implies(a, b), c), "(a -> b) -> c"),
+        (Until(Until(a, b), c), "(a U b) U c"),
+        (Not(Not(a)), "!!a"),
+        (Not(G(a | b)), "!G(a | b)"),
+        (X(TRUE), "X true"),
+    ],
+)
+def test_printer_minimal_parentheses(f: Formula, text: str) -> None:
+    assert str(f) == text
+
+
+@FAST
+@given(formulas(ALL_ATOMS, max_leaves=12))
+def test_print_parse_round_trip(f: Formula) -> None:
+    assert parse(str(f)) == f
+
+
+@pytest.mark.parametrize(
+    ("text", "position", "fragment"),
+    [
+        ("", 0, "expected a formula but found end of input"),
+        ("   ", 3, "expected a formula but found end of input"),
+        ("a $ b", 2, "unexpected character '$'"),
+        ("a - b", 2, "unexpected character '-'"),
+        ("G(a & F(b | c", 13, "expected ')' but found end of input"),
+        ("a & b)", 5, "unbalanced ')'"),
+        ("a &", 3, "expected a formula but found end of input"),
+        ("a & | b", 4, "expected a formula but found '|'"),
+        ("G U a", 2, "expected a formula but found 'U'"),
+        ("a b", 2, "found 'b'"),
+        ("eta[1,]", 6, "expected an index (integer or identifier) but found ']'"),
+        ("eta[]", 4, "expected an index"),
+        ("eta[1 2]", 6, "expected ']' but found '2'"),
+    ],
+)
+def test_syntax_errors_name_the_position(text: str, position: int, fragment: str) -> None:
+    with pytest.raises(LTLSyntaxError) as info:
+        parse(text)
+    err = info.value
+    assert isinstance(err, ValueError)
+    assert (err.position, err.text) == (position, text)
+    message = str(err)
+    assert f"column {position}: " in message and fragment in message
+    assert message.splitlines()[-1] == "  " + " " * position + "^"
+
+
+# --- NNF ------------------------------------------------------------------------------------------
+
+
+def _nnf_shape_ok(f: Formula) -> bool:
+    match f:
+        case Not(arg):
+            return isinstance(arg, Atom)
+        case Implies():
+            return False
+        case And(args) | Or(args):
+            return all(_nnf_shape_ok(x) for x in args)
+        case Next(x) | WeakNext(x) | Always(x) | Eventually(x):
+            return _nnf_shape_ok(x)
+        case Until(x, y) | Release(x, y):
+            return _nnf_shape_ok(x) and _nnf_shape_ok(y)
+    return True
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("!!a", "a"),
+        ("!true", "false"),
+        ("a -> b", "!a | b"),
+        ("!(a & b)", "!a | !b"),
+        ("!(a | b | c)", "!a & !b & !c"),
+        ("!X a", "WX !a"),
+        ("!WX a", "X !a"),
+        ("!G a", "F !a"),
+        ("!F a", "G !a"),
+        ("!(a U b)", "!a R !b"),
+        ("!(a R b)", "!a U !b"),
+        ("!(a -> b)", "a & !b"),
+        ("G(a -> X !b)", "G(!a | X !b)"),
+    ],
+)
+def test_nnf_rules(text: str, expected: str) -> None:
+    assert nnf(parse(text)) == parse(expected)
+
+
+@FAST
+@given(
+    formulas(GROUND, max_leaves=10),
+    st.integers(0, 5).flatmap(lambda T: st.tuples(st.just(T), traces(GROUND, T))),
+)
+def test_nnf_preserves_meaning_and_has_nnf_shape(f: Formula, horizon_trace) -> None:
+    horizon, trace = horizon_trace
+    g = nnf(f)
+    assert _nnf_shape_ok(g)
+    assert truth_table(g, trace, horizon) == truth_table(f, trace, horizon)
+
+
+# --- atoms and placeholders -----------------------------------------------------------------------
+
+
+def test_atoms_placeholders_substitute() -> None:
+    f = parse("G(eta[i,j] -> WX theta[j]) & F p & eta[1,l]")
+    assert atoms(f) == {eta("i", "j"), theta("j"), Atom("p"), eta(1, "l")}
+    assert placeholders(f) == {"i", "j", "l"}
+    g = substitute(f, {"i": 2, "j": 3})
+    assert g == parse("G(eta[2,3] -> WX theta[3]) & F p & eta[1,l]")
+    assert placeholders(g) == {"l"}
+    assert placeholders(substitute(g, {"l": 1})) == frozenset()
