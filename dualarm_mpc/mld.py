@@ -1,0 +1,283 @@
+"""The mixed logical dynamical (MLD) model of two hands and N objects (paper §IV-A, design §1).
+
+Pure data and math: the model's parameters and derived bounds, the reachability times used for
+pruning (§IV-C.2), and :func:`simulate`, which replays forces and grasps through the model. The
+MILP in ``program.py`` encodes the same model; :func:`simulate` is the independent re-simulation
+every plan is checked against.
+
+Model (Δt = ``dt``; arm i = 0 is arm 1, the right arm; objects j):
+
+* hands, eq. (1) as double integrators: ``p⁺ = p + Δt·v``, ``v⁺ = v + Δt·u``;
+* objects, the picking model of eq. (8) as design §1 fixes it (a rigid grasp and a one-step slide
+  after release, so that objects can be thrown):
+
+  - held by hand i at k (η_ij(k) = 1): ``v_obj(k) = v_hand_i(k)``;
+  - released at k (held at k−1, by no hand at k): ``v_obj(k) = v_obj(k−1)``;
+  - otherwise ``v_obj(k) = 0``; always ``p_obj(k+1) = p_obj(k) + Δt·v_obj(k)``.
+
+  At k = 0 the object's velocity is the measured one (the previous step is not part of the horizon).
+* η_ij = 1 → hand i inside the box H_ij around object j (eqs. 10–11), one-sided;
+* (14) an object is held by at most one hand, (15) a hand holds at most one object,
+  (16) ``x_arm2 + gap ≤ x_arm1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from dualarm_mpc.plan import Trajectory
+from dualarm_mpc.scenario import Scenario
+
+N_HANDS = 2
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned rectangle (x_1, x_2) × (y_1, y_2) in the paper's notation."""
+
+    lo: np.ndarray  # [xmin, ymin]
+    hi: np.ndarray  # [xmax, ymax]
+
+    @staticmethod
+    def of(bounds: list[float]) -> Box:
+        xmin, xmax, ymin, ymax = bounds
+        return Box(np.array([xmin, ymin], float), np.array([xmax, ymax], float))
+
+    def contains(self, p: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """Whether each point of ``p`` (…, 2) lies inside (to ``tol``)."""
+        p = np.asarray(p)
+        return np.all((p >= self.lo - tol) & (p <= self.hi + tol), axis=-1)
+
+    def bounds(self) -> list[float]:
+        return [float(self.lo[0]), float(self.hi[0]), float(self.lo[1]), float(self.hi[1])]
+
+
+@dataclass(frozen=True)
+class State:
+    """The MLD state at one step (and the grasps in force), planar."""
+
+    hand_pos: np.ndarray  # (2, 2)
+    hand_vel: np.ndarray  # (2, 2)
+    object_pos: np.ndarray  # (N, 2)
+    object_vel: np.ndarray  # (N, 2)
+    grasp: np.ndarray  # (2, N) of 0/1
+
+    @staticmethod
+    def initial(scenario: Scenario) -> State:
+        n = scenario.n_objects
+        return State(
+            hand_pos=np.array(scenario.hand_start, float),
+            hand_vel=np.zeros((N_HANDS, 2)),
+            object_pos=np.array([o.position for o in scenario.objects], float),
+            object_vel=np.zeros((n, 2)),
+            grasp=np.zeros((N_HANDS, n), int),
+        )
+
+    @staticmethod
+    def last(trajectory: Trajectory) -> State:
+        t = trajectory
+        return State(t.hand_pos[-1], t.hand_vel[-1], t.object_pos[-1], t.object_vel[-1],
+                     t.grasp[-1])
+
+    def select(self, objects: list[int]) -> State:
+        """The state restricted to the given objects (hands unchanged)."""
+        return State(self.hand_pos, self.hand_vel, self.object_pos[objects],
+                     self.object_vel[objects], self.grasp[:, objects])
+
+
+@dataclass(frozen=True)
+class Model:
+    """Parameters of the MLD system for one set of objects, all from the scenario."""
+
+    dt: float
+    v_max: float  # |v| per component, hands (objects move with a hand or slide at its speed)
+    u_max: float  # |u| per component
+    hand_gap: float  # eq. (16)
+    workspace: Box  # hand range
+    goals: tuple[Box, ...]  # goal box of each object, eq. (12)
+    grasp_half: np.ndarray  # (N,) half side of H_ij, eq. (11)
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.goals)
+
+    @staticmethod
+    def from_scenario(scenario: Scenario, objects: list[int] | None = None) -> Model:
+        """The model of ``objects`` (scenario indices; all by default)."""
+        objects = list(range(scenario.n_objects)) if objects is None else objects
+        return Model(
+            dt=scenario.dt,
+            v_max=scenario.max_speed,
+            u_max=scenario.max_force,
+            hand_gap=scenario.hand_gap,
+            workspace=Box.of(scenario.workspace),
+            goals=tuple(Box.of(scenario.goals[scenario.objects[j].goal]) for j in objects),
+            grasp_half=np.array([scenario.objects[j].grasp_half_size for j in objects], float),
+        )
+
+    def object_region(self, start: np.ndarray) -> Box:
+        """Where objects can ever be: where they start, or within a hand's reach of the hand range
+        plus one slide step (design §1). Every object big-M derives from this box."""
+        reach = self.grasp_half.max(initial=0.0) + self.v_max * self.dt
+        lo = np.minimum(self.workspace.lo - reach, np.min(start, axis=0, initial=np.inf))
+        hi = np.maximum(self.workspace.hi + reach, np.max(start, axis=0, initial=-np.inf))
+        return Box(lo, hi)
+
+
+# --- reachability (pruning, §IV-C.2) ------------------------------------------------------------
+
+
+def hand_reach(model: Model, v0: np.ndarray, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per step k = 0..T, the largest displacement of a hand starting with velocity ``v0`` (2,),
+    in the negative and in the positive direction of each axis: (T+1, 2) each.
+
+    With |v| ≤ v_max and |u| ≤ u_max per component, v(t) ≤ min(v_max, v0 + t·Δt·u_max)."""
+    t = np.arange(horizon)[:, None]
+    up = np.minimum(model.v_max, v0 + t * model.dt * model.u_max) * model.dt
+    down = np.minimum(model.v_max, -v0 + t * model.dt * model.u_max) * model.dt
+    zero = np.zeros((1, 2))
+    return np.vstack([zero, np.cumsum(down, 0)]), np.vstack([zero, np.cumsum(up, 0)])
+
+
+@dataclass(frozen=True)
+class Reach:
+    """Sound per-step boxes for hands and objects, and the earliest steps η and θ can be 1."""
+
+    hand_lo: np.ndarray  # (T+1, 2, 2)
+    hand_hi: np.ndarray
+    object_lo: np.ndarray  # (T+1, N, 2)
+    object_hi: np.ndarray
+    first_grab: np.ndarray  # (2, N): earliest k with η_ij(k) = 1 possible (T+1 = never)
+    first_goal: np.ndarray  # (N,): earliest k with θ_j(k) = 1 possible
+
+    def grab_possible(self) -> np.ndarray:
+        """(T+1, 2, N) mask of the η that pruning keeps."""
+        k = np.arange(len(self.hand_lo))[:, None, None]
+        return k >= self.first_grab[None]
+
+    def goal_possible(self) -> np.ndarray:
+        """(T+1, N) mask of the θ that pruning keeps."""
+        return np.arange(len(self.hand_lo))[:, None] >= self.first_goal[None]
+
+
+def reachability(model: Model, state: State, horizon: int) -> Reach:
+    """Reachable boxes from straight-line motion at bounded speed and force (§IV-C.2).
+
+    An object moves only once a hand holds it (or by its measured velocity in the first step), so
+    before its earliest possible grab it stays put; afterwards it moves at most v_max·Δt per step.
+    Hand i can hold object j at k only if its reachable box, widened by H_ij, meets the object's."""
+    T = horizon
+    n = model.n_objects
+    ws = model.workspace
+    hand_lo = np.empty((T + 1, N_HANDS, 2))
+    hand_hi = np.empty((T + 1, N_HANDS, 2))
+    for i in range(N_HANDS):
+        down, up = hand_reach(model, state.hand_vel[i], T)
+        hand_lo[:, i] = np.maximum(state.hand_pos[i] - down, ws.lo)
+        hand_hi[:, i] = np.minimum(state.hand_pos[i] + up, ws.hi)
+    half = model.grasp_half
+    p0 = state.object_pos
+    # Step 0's velocity is measured; it carries the object into step 1.
+    p1 = p0 + model.dt * state.object_vel
+    held = state.grasp.any(axis=0)
+    first_grab = np.full((N_HANDS, n), T + 1)
+    for i in range(N_HANDS):
+        for j in range(n):
+            if state.grasp[i, j]:
+                first_grab[i, j] = 0
+                continue
+            # The object is static at p1 from k = 1 until some hand grabs it.
+            for k in range(1, T + 1):
+                if _meet(hand_lo[k, i], hand_hi[k, i], p1[j] - half[j], p1[j] + half[j]):
+                    first_grab[i, j] = k
+                    break
+    start = np.where(held, 0, first_grab.min(axis=0))  # (N,) earliest step an object can move
+    k = np.arange(T + 1)[:, None]
+    moves = np.clip(k - np.maximum(start, 1)[None], 0, None) * model.v_max * model.dt  # (T+1, N)
+    region = model.object_region(p0)
+    obj_lo = np.where(k[..., None] == 0, p0[None], p1[None] - moves[..., None])
+    obj_hi = np.where(k[..., None] == 0, p0[None], p1[None] + moves[..., None])
+    obj_lo = np.maximum(obj_lo, np.minimum(region.lo, p0))
+    obj_hi = np.minimum(obj_hi, np.maximum(region.hi, p0))
+    # With the object's motion bounded, a second pass catches grabs of an object moved by the other
+    # hand (rule 2 allows put-down and pick-up by the other arm).
+    for i in range(N_HANDS):
+        for j in range(n):
+            if first_grab[i, j] == 0:
+                continue
+            for kk in range(1, T + 1):
+                if _meet(hand_lo[kk, i], hand_hi[kk, i], obj_lo[kk, j] - half[j],
+                         obj_hi[kk, j] + half[j]):
+                    first_grab[i, j] = min(first_grab[i, j], kk)
+                    break
+    first_goal = np.full(n, T + 1)
+    for j in range(n):
+        g = model.goals[j]
+        for kk in range(T + 1):
+            if _meet(obj_lo[kk, j], obj_hi[kk, j], g.lo, g.hi):
+                first_goal[j] = kk
+                break
+    return Reach(hand_lo, hand_hi, obj_lo, obj_hi, first_grab, first_goal)
+
+
+def _meet(lo1, hi1, lo2, hi2) -> bool:
+    return bool(np.all(lo1 <= hi2 + 1e-12) and np.all(lo2 <= hi1 + 1e-12))
+
+
+# --- re-simulation --------------------------------------------------------------------------------
+
+
+def simulate(model: Model, state: State, force: np.ndarray, grasp: np.ndarray) -> Trajectory:
+    """Replay ``force`` (K, 2, 2) and ``grasp`` (K+1, 2, N) through the model from ``state``.
+
+    ``grasp[0]`` must equal ``state.grasp``. This is the reference semantics of the picking model;
+    it shares no code with the MILP encoding."""
+    K = len(force)
+    n = model.n_objects
+    dt = model.dt
+    hp = np.empty((K + 1, N_HANDS, 2))
+    hv = np.empty((K + 1, N_HANDS, 2))
+    op = np.empty((K + 1, n, 2))
+    ov = np.empty((K + 1, n, 2))
+    hp[0], hv[0], op[0], ov[0] = state.hand_pos, state.hand_vel, state.object_pos, state.object_vel
+    for k in range(K + 1):
+        if k > 0:
+            hp[k] = hp[k - 1] + dt * hv[k - 1]
+            hv[k] = hv[k - 1] + dt * force[k - 1]
+            op[k] = op[k - 1] + dt * ov[k - 1]
+            for j in range(n):
+                holder = np.flatnonzero(grasp[k, :, j])
+                if len(holder):
+                    ov[k, j] = hv[k, holder[0]]
+                elif grasp[k - 1, :, j].any():
+                    ov[k, j] = ov[k - 1, j]  # released: slides one step
+                else:
+                    ov[k, j] = 0.0
+    return Trajectory(hp, hv, np.asarray(force, float), op, ov, np.asarray(grasp, int))
+
+
+def violations(model: Model, traj: Trajectory, tol: float = 1e-5) -> list[str]:
+    """Every way ``traj`` breaks the model's constraints (bounds, eqs. 10–11, 14–16)."""
+    out = []
+    g = traj.grasp
+    if np.abs(traj.force).max(initial=0) > model.u_max + tol:
+        out.append(f"|u| exceeds u_max = {model.u_max}")
+    if np.abs(traj.hand_vel).max(initial=0) > model.v_max + tol:
+        out.append(f"|v_hand| exceeds v_max = {model.v_max}")
+    if not model.workspace.contains(traj.hand_pos, tol).all():
+        out.append("a hand leaves the workspace")
+    gap = traj.hand_pos[:, 0, 0] - traj.hand_pos[:, 1, 0]
+    if (gap < model.hand_gap - tol).any():
+        k = int(np.argmax(gap < model.hand_gap - tol))
+        out.append(f"eq. (16) broken at step {k}: x_arm1 - x_arm2 = {gap[k]:.4f}")
+    if (g.sum(axis=1) > 1).any():
+        out.append("eq. (14): an object held by both hands")
+    if (g.sum(axis=2) > 1).any():
+        out.append("eq. (15): a hand holds two objects")
+    for k, i, j in zip(*np.nonzero(g[1:]), strict=True):
+        d = np.abs(traj.hand_pos[k + 1, i] - traj.object_pos[k + 1, j]).max()
+        if d > model.grasp_half[j] + tol:
+            out.append(f"eq. (10): hand {i + 1} grabs object {j + 1} at step {k + 1} from {d:.3f} m")
+    return out

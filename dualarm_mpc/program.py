@@ -1,0 +1,181 @@
+"""The MILP of one horizon: the MLD model (eqs. 1, 7–11, 14–16) and cost (17) on a MathematicalProgram.
+
+One ``add_<family>`` function per constraint family, each built in vectorized blocks (``linear.Rows``)
+with every big-M derived from the scenario's bounds and the reachable boxes of ``mld.reachability``.
+The LTL part is added by ``encoding.py``; this module knows nothing of formulas.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.solvers import MathematicalProgram
+
+from dualarm_mpc.linear import Rows, bound, new_variables
+from dualarm_mpc.mld import N_HANDS, Model, Reach, State
+
+
+@dataclass(frozen=True)
+class HorizonVariables:
+    """Indices (into ``prog.decision_variables()``) of the variables of one horizon k = 0..T."""
+
+    horizon: int
+    hand_pos: np.ndarray  # (T+1, 2, 2)
+    hand_vel: np.ndarray  # (T+1, 2, 2)
+    force: np.ndarray  # (T, 2, 2): u
+    force_abs: np.ndarray  # (T, 2, 2): |u|, for cost (17)
+    object_pos: np.ndarray  # (T+1, N, 2)
+    object_vel: np.ndarray  # (T+1, N, 2)
+    eta: np.ndarray  # (T+1, 2, N) binary: hand i grabs object j
+    theta: np.ndarray  # (T+1, N) binary: object j in its goal (one-sided, eq. 7)
+
+    @property
+    def binaries(self) -> np.ndarray:
+        return np.concatenate([self.eta.ravel(), self.theta.ravel()])
+
+
+def new_horizon_variables(prog: MathematicalProgram, horizon: int, n: int) -> HorizonVariables:
+    T = horizon
+    return HorizonVariables(
+        horizon=T,
+        hand_pos=new_variables(prog, (T + 1, N_HANDS, 2), "p_hand"),
+        hand_vel=new_variables(prog, (T + 1, N_HANDS, 2), "v_hand"),
+        force=new_variables(prog, (T, N_HANDS, 2), "u"),
+        force_abs=new_variables(prog, (T, N_HANDS, 2), "abs_u"),
+        object_pos=new_variables(prog, (T + 1, n, 2), "p_obj"),
+        object_vel=new_variables(prog, (T + 1, n, 2), "v_obj"),
+        eta=new_variables(prog, (T + 1, N_HANDS, n), "eta", binary=True),
+        theta=new_variables(prog, (T + 1, n), "theta", binary=True),
+    )
+
+
+def object_speed_bound(model: Model, state: State) -> float:
+    """|v_obj| per component: a hand's speed, or the measured speed if an object slides faster."""
+    return max(model.v_max, float(np.abs(state.object_vel).max(initial=0.0)))
+
+
+def add_bounds(prog, x: HorizonVariables, model: Model, state: State, reach: Reach,
+               pruning: bool) -> None:
+    """Initial state, variable bounds, reachable boxes and pruning (§IV-C.2).
+
+    Pruning fixes η_ij(k) = 0 before hand i can reach object j and θ_j(k) = 0 before object j can
+    reach its goal; the reachable boxes bound every position, which also tightens every big-M."""
+    vo = object_speed_bound(model, state)
+    bound(prog, x.hand_pos, reach.hand_lo, reach.hand_hi)
+    bound(prog, x.hand_vel[1:], -model.v_max, model.v_max)
+    bound(prog, x.hand_vel[0], state.hand_vel, state.hand_vel)
+    bound(prog, x.force, -model.u_max, model.u_max)
+    bound(prog, x.force_abs, 0.0, model.u_max)
+    bound(prog, x.object_pos, reach.object_lo, reach.object_hi)
+    bound(prog, x.object_vel[1:], -vo, vo)
+    bound(prog, x.object_vel[0], state.object_vel, state.object_vel)
+    eta_ub = np.ones(x.eta.shape)
+    theta_ub = np.ones(x.theta.shape)
+    if pruning:
+        eta_ub = reach.grab_possible().astype(float)
+        theta_ub = reach.goal_possible().astype(float)
+    eta_lb = np.zeros(x.eta.shape)
+    eta_lb[0] = eta_ub[0] = state.grasp  # the grasp in force now is measured, not decided
+    bound(prog, x.eta, eta_lb, eta_ub)
+    bound(prog, x.theta, 0.0, theta_ub)
+
+
+def add_dynamics(prog, x: HorizonVariables, model: Model) -> None:
+    """Eq. (1): double integrators ``p⁺ = p + Δt·v`` (hands and objects), ``v⁺ = v + Δt·u`` (hands)."""
+    rows = Rows()
+    dt = model.dt
+    rows.add([(1, x.hand_pos[1:]), (-1, x.hand_pos[:-1]), (-dt, x.hand_vel[:-1])], 0, 0)
+    rows.add([(1, x.hand_vel[1:]), (-1, x.hand_vel[:-1]), (-dt, x.force)], 0, 0)
+    rows.add([(1, x.object_pos[1:]), (-1, x.object_pos[:-1]), (-dt, x.object_vel[:-1])], 0, 0)
+    rows.emit(prog, "dynamics (1)")
+
+
+def add_picking(prog, x: HorizonVariables, model: Model, state: State, reach: Reach) -> None:
+    """The picking model, eqs. (8)–(11) as design §1 fixes them, linearized with big-M.
+
+    For k ≥ 1, with ``held_j(k) = Σ_i η_ij(k)`` (0 or 1 by eq. 14):
+
+    * (8)  η_ij(k) = 1 → v_obj_j(k) = v_hand_i(k):   |v_obj − v_hand| ≤ M_v·(1 − η_ij)
+    * slide after release:  |v_obj(k) − v_obj(k−1)| ≤ M_v·(held(k) + 1 − held(k−1))
+    * otherwise at rest:   |v_obj(k)| ≤ v̄·(held(k) + held(k−1))
+    * (10)–(11) η_ij(k) = 1 → |p_hand_i − p_obj_j| ≤ h_j per axis, with M from the reachable boxes.
+    """
+    rows = Rows()
+    vo = object_speed_bound(model, state)
+    Mv = model.v_max + vo
+    eta = x.eta[1:]  # (T, 2, N)
+    v_obj = x.object_vel[1:][:, None]  # (T, 1, N, 2)
+    v_hand = x.hand_vel[1:][:, :, None]  # (T, 2, 1, 2)
+    e = eta[..., None]
+    rows.add([(1, v_obj), (-1, v_hand), (Mv, e)], ub=Mv)
+    rows.add([(-1, v_obj), (1, v_hand), (Mv, e)], ub=Mv)
+
+    # held(k) and held(k−1) as sums over the hands, broadcast over the axis.
+    now = [x.eta[1:, i, :, None] for i in range(N_HANDS)]
+    before = [x.eta[:-1, i, :, None] for i in range(N_HANDS)]
+    slide = [(-2 * vo, h) for h in now] + [(2 * vo, h) for h in before]
+    rows.add([(1, x.object_vel[1:]), (-1, x.object_vel[:-1])] + slide, ub=2 * vo)
+    rows.add([(-1, x.object_vel[1:]), (1, x.object_vel[:-1])] + slide, ub=2 * vo)
+    rest = [(-vo, h) for h in now + before]
+    rows.add([(1, x.object_vel[1:])] + rest, ub=0)
+    rows.add([(-1, x.object_vel[1:])] + rest, ub=0)
+
+    # (10)-(11): the hand inside H_ij while grabbing; M from the reachable boxes of both.
+    half = model.grasp_half[None, None, :, None]
+    hand_lo = reach.hand_lo[1:, :, None]
+    hand_hi = reach.hand_hi[1:, :, None]
+    obj_lo = reach.object_lo[1:, None]
+    obj_hi = reach.object_hi[1:, None]
+    p_hand = x.hand_pos[1:][:, :, None]
+    p_obj = x.object_pos[1:][:, None]
+    m_up = np.maximum(hand_hi - obj_lo - half, 0.0)
+    m_down = np.maximum(obj_hi - hand_lo - half, 0.0)
+    rows.add([(1, p_hand), (-1, p_obj), (m_up, e)], ub=half + m_up)
+    rows.add([(-1, p_hand), (1, p_obj), (m_down, e)], ub=half + m_down)
+    rows.emit(prog, "picking model (8)-(11)")
+
+
+def add_system_constraints(prog, x: HorizonVariables, model: Model) -> None:
+    """Eqs. (14)–(16), and a rest at the horizon's end so the next sequential step can go on:
+    (14) Σ_i η_ij ≤ 1, (15) Σ_j η_ij ≤ 1, (16) x_arm2 + gap ≤ x_arm1; v_hand(T) = v_obj(T) = 0."""
+    rows = Rows()
+    rows.add([(1, x.eta[1:, 0]), (1, x.eta[1:, 1])], ub=1)
+    n = x.eta.shape[2]
+    for i in range(N_HANDS):
+        rows.add([(1, x.eta[1:, i, j]) for j in range(n)], ub=1)
+    rows.add([(1, x.hand_pos[1:, 0, 0]), (-1, x.hand_pos[1:, 1, 0])], lb=model.hand_gap)
+    rows.emit(prog, "system constraints (14)-(16)")
+    bound(prog, x.hand_vel[-1], 0.0, 0.0)
+    bound(prog, x.object_vel[-1], 0.0, 0.0)
+
+
+def add_goal_atoms(prog, x: HorizonVariables, model: Model, reach: Reach) -> None:
+    """Eqs. (7), (12): θ_j(k) = 1 → p_obj_j(k) in goal box H_j, one-sided big-M [18]."""
+    rows = Rows()
+    lo = np.array([g.lo for g in model.goals])[None]  # (1, N, 2)
+    hi = np.array([g.hi for g in model.goals])[None]
+    m_up = np.maximum(reach.object_hi - hi, 0.0)
+    m_down = np.maximum(lo - reach.object_lo, 0.0)
+    th = x.theta[..., None]
+    rows.add([(1, x.object_pos), (m_up, th)], ub=hi + m_up)
+    rows.add([(-1, x.object_pos), (m_down, th)], ub=-lo + m_down)
+    rows.emit(prog, "goal atoms (7), (12)")
+
+
+def add_cost(prog, x: HorizonVariables, state_weight: float = 0.0) -> None:
+    """Eq. (17): J = Σ_k ‖u_1(k)‖₁ + ‖u_2(k)‖₁ via |u| ≥ ±u, plus an optional ‖v_hand‖₁ weight."""
+    rows = Rows()
+    rows.add([(1, x.force_abs), (-1, x.force)], lb=0)
+    rows.add([(1, x.force_abs), (1, x.force)], lb=0)
+    cost_vars = [x.force_abs.ravel()]
+    weights = [np.ones(x.force_abs.size)]
+    if state_weight > 0:
+        speed = new_variables(prog, x.hand_vel.shape, "abs_v")
+        rows.add([(1, speed), (-1, x.hand_vel)], lb=0)
+        rows.add([(1, speed), (1, x.hand_vel)], lb=0)
+        cost_vars.append(speed.ravel())
+        weights.append(np.full(speed.size, state_weight))
+    rows.emit(prog, "cost (17) epigraph")
+    index = np.concatenate(cost_vars)
+    prog.AddLinearCost(np.concatenate(weights), 0.0, prog.decision_variables()[index])

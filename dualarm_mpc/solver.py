@@ -1,0 +1,198 @@
+"""The one solver boundary: a MathematicalProgram MILP solved by HiGHS (or Drake's licensed solvers).
+
+Drake's pip wheel has no MILP solver, so :func:`solve` reads the program's linear costs, linear
+constraints, bounding boxes and binary variables in bulk as sparse matrices and hands them to
+``highspy``. Where a licensed Gurobi or MOSEK is available and asked for, Drake's own solver runs
+instead. This module knows nothing of LTL or robots.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from pydrake.solvers import MathematicalProgram, SolverOptions
+from pydrake.symbolic import Variable
+
+log = logging.getLogger(__name__)
+
+
+class Status(enum.Enum):
+    OPTIMAL = "optimal"
+    FEASIBLE = "feasible"  # a solution with a gap above the asked one (stopped early)
+    INFEASIBLE = "infeasible"
+    TIME_LIMIT = "time_limit"  # stopped with no solution
+    ERROR = "error"
+
+    @property
+    def has_solution(self) -> bool:
+        return self in (Status.OPTIMAL, Status.FEASIBLE)
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    time_limit_s: float = 30.0
+    mip_rel_gap: float = 1e-4
+    threads: int = 1
+    backend: str = "highs"  # or "gurobi" / "mosek" (Drake, licensed)
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    status: Status
+    objective: float  # inf when there is no solution
+    bound: float  # the proven lower bound
+    gap: float  # relative gap; 0 when optimal, inf when no solution
+    wall_time_s: float
+    x: np.ndarray | None  # values of prog.decision_variables(), or None
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class StandardForm:
+    """min c·x + c0 s.t. row_lb ≤ A x ≤ row_ub, col_lb ≤ x ≤ col_ub, x_i integer for i in ints."""
+
+    c: np.ndarray
+    c0: float
+    A: sp.csr_matrix
+    row_lb: np.ndarray
+    row_ub: np.ndarray
+    col_lb: np.ndarray
+    col_ub: np.ndarray
+    integer: np.ndarray  # bool mask
+
+
+def standard_form(prog: MathematicalProgram) -> StandardForm:
+    """Read ``prog`` (linear costs and constraints only) into sparse matrices."""
+    n = prog.num_vars()
+    unsupported = (prog.quadratic_costs() or prog.generic_constraints() or prog.generic_costs()
+                   or prog.lorentz_cone_constraints() or prog.quadratic_constraints())
+    if unsupported:
+        raise ValueError("the HiGHS adapter accepts linear costs and linear constraints only")
+    c = np.zeros(n)
+    c0 = 0.0
+    for b in prog.linear_costs():
+        idx = prog.FindDecisionVariableIndices(b.variables())
+        np.add.at(c, idx, b.evaluator().a())
+        c0 += b.evaluator().b()
+    col_lb = np.full(n, -np.inf)
+    col_ub = np.full(n, np.inf)
+    for b in prog.bounding_box_constraints():
+        idx = prog.FindDecisionVariableIndices(b.variables())
+        e = b.evaluator()
+        np.maximum.at(col_lb, idx, e.lower_bound())
+        np.minimum.at(col_ub, idx, e.upper_bound())
+    blocks, lbs, ubs = [], [], []
+    for b in list(prog.linear_constraints()) + list(prog.linear_equality_constraints()):
+        idx = np.asarray(prog.FindDecisionVariableIndices(b.variables()))
+        e = b.evaluator()
+        A = e.get_sparse_A().tocoo()
+        blocks.append(sp.csr_matrix((A.data, (A.row, idx[A.col])), shape=(A.shape[0], n)))
+        lbs.append(e.lower_bound())
+        ubs.append(e.upper_bound())
+    A = sp.vstack(blocks, format="csr") if blocks else sp.csr_matrix((0, n))
+    integer = np.array([v.get_type() == Variable.Type.BINARY for v in prog.decision_variables()],
+                       bool)
+    col_lb[integer] = np.maximum(col_lb[integer], 0.0)
+    col_ub[integer] = np.minimum(col_ub[integer], 1.0)
+    return StandardForm(c, c0, A, np.concatenate(lbs) if lbs else np.zeros(0),
+                        np.concatenate(ubs) if ubs else np.zeros(0), col_lb, col_ub, integer)
+
+
+def solve(prog: MathematicalProgram, options: SolveOptions = SolveOptions(),
+          start: np.ndarray | None = None) -> SolveResult:
+    """Solve the MILP ``prog``; ``start`` is a MIP start (values of all decision variables)."""
+    if options.backend != "highs":
+        return _solve_with_drake(prog, options, start)
+    return solve_standard_form(standard_form(prog), options, start)
+
+
+def solve_standard_form(f: StandardForm, options: SolveOptions,
+                        start: np.ndarray | None = None) -> SolveResult:
+    import highspy  # local: the adapter is the only place that knows the solver
+
+    t0 = time.perf_counter()
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("time_limit", float(options.time_limit_s))
+    h.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
+    h.setOptionValue("threads", int(options.threads))
+    lp = highspy.HighsLp()
+    n = len(f.c)
+    lp.num_col_ = n
+    lp.num_row_ = f.A.shape[0]
+    lp.col_cost_ = f.c
+    lp.offset_ = f.c0
+    lp.col_lower_ = f.col_lb
+    lp.col_upper_ = f.col_ub
+    lp.row_lower_ = f.row_lb
+    lp.row_upper_ = f.row_ub
+    A = f.A.tocsc()
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
+    lp.a_matrix_.start_ = A.indptr
+    lp.a_matrix_.index_ = A.indices
+    lp.a_matrix_.value_ = A.data
+    lp.a_matrix_.num_col_ = n
+    lp.a_matrix_.num_row_ = f.A.shape[0]
+    lp.integrality_ = [
+        highspy.HighsVarType.kInteger if b else highspy.HighsVarType.kContinuous for b in f.integer
+    ]
+    h.passModel(lp)
+    if start is not None:
+        sol = highspy.HighsSolution()
+        sol.col_value = list(np.clip(start, f.col_lb, f.col_ub))
+        sol.value_valid = True
+        h.setSolution(sol)
+    h.run()
+    wall = time.perf_counter() - t0
+    status = h.getModelStatus()
+    info = h.getInfo()
+    M = highspy.HighsModelStatus
+    has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    if status == M.kOptimal:
+        s = Status.OPTIMAL
+    elif status in (M.kInfeasible,):
+        s = Status.INFEASIBLE
+    elif has_solution:
+        s = Status.FEASIBLE
+    elif status in (M.kTimeLimit, M.kIterationLimit, M.kSolutionLimit, M.kInterrupt):
+        s = Status.TIME_LIMIT
+    else:
+        s = Status.ERROR
+    if s.has_solution:
+        x = np.asarray(h.getSolution().col_value)
+        obj = float(info.objective_function_value)
+        bound = float(info.mip_dual_bound)
+        gap = 0.0 if s is Status.OPTIMAL else float(info.mip_gap)
+    else:
+        x, obj, bound, gap = None, np.inf, float(info.mip_dual_bound), np.inf
+    return SolveResult(s, obj, bound, gap, wall, x, h.modelStatusToString(status))
+
+
+def _solve_with_drake(prog, options: SolveOptions, start) -> SolveResult:
+    """Drake's own Gurobi or MOSEK, where licensed (``backend`` = "gurobi" / "mosek")."""
+    from pydrake.solvers import GurobiSolver, MosekSolver
+
+    solver = {"gurobi": GurobiSolver, "mosek": MosekSolver}[options.backend]()
+    if not (solver.available() and solver.enabled()):
+        raise RuntimeError(
+            f"solver backend {options.backend!r} is not available or not licensed here; "
+            "use backend 'highs'"
+        )
+    opts = SolverOptions()
+    if options.backend == "gurobi":
+        opts.SetOption(solver.solver_id(), "TimeLimit", options.time_limit_s)
+        opts.SetOption(solver.solver_id(), "MIPGap", options.mip_rel_gap)
+        opts.SetOption(solver.solver_id(), "Threads", options.threads)
+    t0 = time.perf_counter()
+    result = solver.Solve(prog, start, opts)
+    wall = time.perf_counter() - t0
+    if result.is_success():
+        return SolveResult(Status.OPTIMAL, result.get_optimal_cost(), result.get_optimal_cost(),
+                           0.0, wall, result.GetSolution(prog.decision_variables()))
+    return SolveResult(Status.INFEASIBLE, np.inf, np.inf, np.inf, wall, None,
+                       str(result.get_solution_result()))

@@ -1,0 +1,158 @@
+"""Controller: hand references → desired joint states of both SCARA arms, by closed-form IK.
+
+Kinematics of one arm (base at ``b``, link lengths ``l1``, ``l2``, shoulder angle ``q1`` from +x,
+elbow angle ``q2`` relative to link 1, hand height ``q3``)::
+
+    p = b + l1·(cos q1, sin q1) + l2·(cos(q1 + q2), sin(q1 + q2)),    z = q3.
+
+Inverse: ``cos q2 = (|p − b|² − l1² − l2²) / (2 l1 l2)`` (clamped to [−1, 1] outside the reach),
+``q2 = s·acos(·)`` with a fixed elbow sign ``s`` per arm, then
+``q1 = atan2(p − b) − atan2(l2 sin q2, l1 + l2 cos q2)``. The default signs (−1 right, +1 left)
+put the elbows outside, away from each other, when the hands work in front of the bases (the
+objects' side, y < 0.3). A fixed sign keeps the joint path continuous; it never flips elbows.
+
+Joint velocities come from the Jacobian, inverted with a small damping near the singularities
+(stretched arm, hand over its own base), and clipped. The revolute angles are unwrapped to the
+measured ones (the nearest multiple of 2π), so a reference crossing atan2's branch cut does not
+send the shoulder around a full turn.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+ELBOW_SIGNS = (-1, 1)  # arm 1 (right), arm 2 (left): elbows point away from each other
+_DAMPING = 1e-3  # damped least squares near singularities (m)
+_MAX_JOINT_SPEED = 20.0  # rad/s clip of the reference joint speed
+
+
+def scara_fk(q: Sequence[float], base: Sequence[float], lengths: Sequence[float]) -> np.ndarray:
+    """The hand's in-plane position for joint angles ``q = (q1, q2)``."""
+    l1, l2 = lengths
+    q1, q2 = q[0], q[1]
+    return np.array(
+        [
+            base[0] + l1 * np.cos(q1) + l2 * np.cos(q1 + q2),
+            base[1] + l1 * np.sin(q1) + l2 * np.sin(q1 + q2),
+        ]
+    )
+
+
+def scara_ik(
+    p: Sequence[float], base: Sequence[float], lengths: Sequence[float], elbow_sign: int
+) -> np.ndarray:
+    """Joint angles (q1, q2) placing the hand at ``p``; q1 in (−π, π], sign(q2) = elbow_sign."""
+    l1, l2 = lengths
+    dx, dy = p[0] - base[0], p[1] - base[1]
+    c2 = (dx * dx + dy * dy - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
+    q2 = elbow_sign * np.arccos(np.clip(c2, -1.0, 1.0))
+    q1 = np.arctan2(dy, dx) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
+    q1 = (q1 + np.pi) % (2.0 * np.pi) - np.pi
+    return np.array([q1, q2])
+
+
+def scara_jacobian(q: Sequence[float], lengths: Sequence[float]) -> np.ndarray:
+    """∂p/∂(q1, q2), 2×2."""
+    l1, l2 = lengths
+    s1, c1 = np.sin(q[0]), np.cos(q[0])
+    s12, c12 = np.sin(q[0] + q[1]), np.cos(q[0] + q[1])
+    return np.array([[-l1 * s1 - l2 * s12, -l2 * s12], [l1 * c1 + l2 * c12, l2 * c12]])
+
+
+def scara_joint_velocity(
+    q: Sequence[float], v: Sequence[float], lengths: Sequence[float]
+) -> np.ndarray:
+    """(q1', q2') giving hand velocity ``v`` at ``q``: damped least squares, clipped."""
+    J = scara_jacobian(q, lengths)
+    qd = J.T @ np.linalg.solve(J @ J.T + _DAMPING**2 * np.eye(2), np.asarray(v, float))
+    return np.clip(qd, -_MAX_JOINT_SPEED, _MAX_JOINT_SPEED)
+
+
+def unwrap_to(angle: float, reference: float) -> float:
+    """``angle`` + 2πn closest to ``reference``."""
+    return angle + 2.0 * np.pi * np.round((reference - angle) / (2.0 * np.pi))
+
+
+class Controller(LeafSystem):
+    """Closed-form SCARA inverse kinematics for both arms, feeding the plant's PD actuators.
+
+    .. pydrake_system::
+
+        name: Controller
+        input_ports:
+        - hand_reference
+        - plant_state
+        output_ports:
+        - desired_state
+
+    ``hand_reference`` (12): per arm i = 0 (right), 1 (left) [x, y, z, vx, vy, vz] at ``6i``
+    (the Interpolator's output). ``plant_state``: the plant's full state [q; v]
+    (``plant.get_state_output_port()``), read only to unwrap the revolute angles.
+    ``desired_state`` (12): [q_d; v_d] of the six actuated joints in the order of the robot's
+    desired-state input port (``plant.get_desired_state_input_port(robot)``).
+
+    Joint bookkeeping is passed in, not looked up, so the system is plant-free: canonical joint
+    c = 3i + m is arm i's shoulder (m = 0), elbow (1) or z joint (2); ``position_indices[c]`` is
+    its index in the plant's q, and ``actuator_order[a]`` the canonical joint driven by slot a of
+    the desired-state port. The z joint's position is the hand's height (the model's convention).
+    """
+
+    def __init__(
+        self,
+        arm_bases: Sequence[Sequence[float]],
+        link_lengths: Sequence[float],
+        position_indices: Sequence[int],
+        actuator_order: Sequence[int],
+        plant_state_size: int,
+        elbow_signs: Sequence[int] = ELBOW_SIGNS,
+    ):
+        super().__init__()
+        self._bases = np.asarray(arm_bases, dtype=float).reshape(2, 2)
+        self._lengths = tuple(float(x) for x in link_lengths)
+        if len(self._lengths) != 2 or min(self._lengths) <= 0:
+            raise ValueError(f"link_lengths: expected two positive lengths, got {link_lengths}")
+        if sorted(actuator_order) != list(range(6)):
+            raise ValueError(f"actuator_order: expected a permutation of 0..5, got {actuator_order}")
+        if len(position_indices) != 6 or not all(0 <= k < plant_state_size for k in position_indices):
+            raise ValueError(f"position_indices: expected 6 indices into q, got {position_indices}")
+        if any(s not in (-1, 1) for s in elbow_signs) or len(elbow_signs) != 2:
+            raise ValueError(f"elbow_signs: expected two of ±1, got {elbow_signs}")
+        self._positions = np.asarray(position_indices, dtype=int)
+        self._order = np.asarray(actuator_order, dtype=int)
+        self._signs = tuple(int(s) for s in elbow_signs)
+        self._hand_reference = self.DeclareVectorInputPort("hand_reference", 12)
+        self._plant_state = self.DeclareVectorInputPort("plant_state", plant_state_size)
+        self._desired_state = self.DeclareVectorOutputPort(
+            "desired_state", 12, self._calc_desired_state
+        )
+
+    def get_hand_reference_input_port(self):
+        return self._hand_reference
+
+    def get_plant_state_input_port(self):
+        return self._plant_state
+
+    def get_desired_state_output_port(self):
+        return self._desired_state
+
+    def joint_targets(self, hand_reference: np.ndarray, q_measured: np.ndarray) -> np.ndarray:
+        """[q(6); v(6)] in canonical order from a reference (12) and measured canonical q (6)."""
+        ref = np.asarray(hand_reference, dtype=float).reshape(2, 6)
+        q = np.zeros(6)
+        v = np.zeros(6)
+        for i in range(2):
+            angles = scara_ik(ref[i, 0:2], self._bases[i], self._lengths, self._signs[i])
+            angles = [unwrap_to(a, q_measured[3 * i + m]) for m, a in enumerate(angles)]
+            q[3 * i : 3 * i + 2] = angles
+            q[3 * i + 2] = ref[i, 2]
+            v[3 * i : 3 * i + 2] = scara_joint_velocity(angles, ref[i, 3:5], self._lengths)
+            v[3 * i + 2] = ref[i, 5]
+        return np.concatenate([q, v])
+
+    def _calc_desired_state(self, context, output):
+        x = self._plant_state.Eval(context)
+        canonical = self.joint_targets(self._hand_reference.Eval(context), x[self._positions])
+        output.SetFromVector(np.concatenate([canonical[self._order], canonical[6 + self._order]]))
