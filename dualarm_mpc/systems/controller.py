@@ -115,8 +115,12 @@ class Controller(LeafSystem):
         if len(self._lengths) != 2 or min(self._lengths) <= 0:
             raise ValueError(f"link_lengths: expected two positive lengths, got {link_lengths}")
         if sorted(actuator_order) != list(range(6)):
-            raise ValueError(f"actuator_order: expected a permutation of 0..5, got {actuator_order}")
-        if len(position_indices) != 6 or not all(0 <= k < plant_state_size for k in position_indices):
+            raise ValueError(
+                f"actuator_order: expected a permutation of 0..5, got {actuator_order}"
+            )
+        if len(position_indices) != 6 or not all(
+            0 <= k < plant_state_size for k in position_indices
+        ):
             raise ValueError(f"position_indices: expected 6 indices into q, got {position_indices}")
         if any(s not in (-1, 1) for s in elbow_signs) or len(elbow_signs) != 2:
             raise ValueError(f"elbow_signs: expected two of ±1, got {elbow_signs}")

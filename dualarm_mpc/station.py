@@ -1,0 +1,335 @@
+"""Station: the simulated table-top — plant, robot, table, objects, goal patches — and its drivers.
+
+:func:`AddStation` builds the physical scene from a :class:`~dualarm_mpc.scenario.Scenario`;
+:func:`AddControlStack` wires the low-level systems around it (interpolator → controller → plant,
+gripper ↔ plant, state estimator), leaving the plan input and the measured state for the caller
+(the planner, or a fixed plan in tests).
+
+Physics (design §4, measured): MultibodyPlant with the SAP discrete solver at ``time_step``,
+hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0 with rigid
+hydroelastic properties; the objects are ``object_size`` boxes with compliant hydroelastic
+properties, resting on it at their scenario positions. Table and objects share the Coulomb
+friction μ = ``scenario.table_friction`` (so the combined μ is exactly that), low by design: a
+released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`` (the single
+source of its geometry and gains); the table, objects and goal patches are made here because
+their count, colours and friction come from the scenario.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    AddRigidHydroelasticProperties,
+    Box,
+    HalfSpace,
+    ProximityProperties,
+    SceneGraph,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlant,
+    MultibodyPlantConfig,
+)
+from pydrake.multibody.tree import Joint, ModelInstanceIndex, RigidBody, SpatialInertia
+from pydrake.systems.framework import DiagramBuilder
+
+from dualarm_mpc.resources import ROBOT_URL, package_map
+from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
+from dualarm_mpc.systems.gripper import Gripper
+from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator
+from dualarm_mpc.systems.state_estimator import StateEstimator
+
+ARMS = ("right", "left")  # arm 1 (index 0) is the right arm, arm 2 (index 1) the left
+JOINTS = ("shoulder", "elbow", "z")  # canonical joint c = 3·i + m of arm i
+OBJECT_MASS = 0.1  # kg
+OBJECT_MODULUS = 1e7  # Pa, compliant hydroelastic modulus of the objects
+GOAL_COLOURS = {
+    "red": (0.85, 0.15, 0.15),
+    "green": (0.15, 0.65, 0.2),
+    "blue": (0.15, 0.3, 0.85),
+}
+OTHER_COLOUR = (0.55, 0.55, 0.55)
+TABLE_COLOUR = (0.82, 0.78, 0.7, 1.0)
+
+
+def goal_colour(goal: str) -> tuple[float, float, float]:
+    """RGB of a goal name: red, green, blue by name, grey for any other name."""
+    return GOAL_COLOURS.get(goal.lower(), OTHER_COLOUR)
+
+
+@dataclass(frozen=True)
+class Station:
+    """What :func:`AddStation` made. Index conventions: arm i = 0 right, 1 left; object j in
+    scenario order."""
+
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    robot: ModelInstanceIndex
+    object_instances: tuple[ModelInstanceIndex, ...]
+    hands: tuple[RigidBody, RigidBody]  # end-effector body per arm
+    objects: tuple[RigidBody, ...]
+    arm_joints: tuple[tuple[Joint, Joint, Joint], ...]  # (shoulder, elbow, z) per arm
+    arm_bases: np.ndarray  # (2, 2), read from the model
+    link_lengths: tuple[float, float]  # read from the model
+    elbow_signs: tuple[int, int]
+    position_indices: tuple[int, ...]  # canonical joint c → index in the plant's q
+    actuator_order: tuple[int, ...]  # desired-state slot a → canonical joint c
+    grasp_half_sizes: tuple[float, ...]
+    object_size: float
+    grasp_height: float  # hand height when it holds an object: the object's centre
+    travel_height: float  # hand height when it holds nothing
+    time_step: float
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.objects)
+
+
+def _object_proximity(size: float, mu: float) -> ProximityProperties:
+    props = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
+    AddCompliantHydroelasticProperties(size, OBJECT_MODULUS, props)
+    return props
+
+
+def _table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
+    xs = [scenario.workspace[0], scenario.workspace[1]]
+    ys = [scenario.workspace[2], scenario.workspace[3]]
+    for box in scenario.goals.values():
+        xs += box[:2]
+        ys += box[2:]
+    for o in scenario.objects:
+        xs.append(o.position[0])
+        ys.append(o.position[1])
+    return [min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin]
+
+
+def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
+    world = plant.world_body()
+    mu = scenario.table_friction
+    props = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
+    AddRigidHydroelasticProperties(properties=props)
+    plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "table", props)
+    x0, x1, y0, y1 = _table_extent(scenario)
+    thickness = 0.02
+    plant.RegisterVisualGeometry(
+        world,
+        RigidTransform([(x0 + x1) / 2, (y0 + y1) / 2, -thickness / 2]),
+        Box(x1 - x0, y1 - y0, thickness),
+        "table_top",
+        np.array(TABLE_COLOUR),
+    )
+    for name, (gx0, gx1, gy0, gy1) in scenario.goals.items():
+        rgb = np.array(goal_colour(name))
+        plant.RegisterVisualGeometry(
+            world,
+            RigidTransform([(gx0 + gx1) / 2, (gy0 + gy1) / 2, 0.0005]),
+            Box(gx1 - gx0, gy1 - gy0, 0.001),
+            f"goal_{name}",
+            np.append(0.6 * rgb + 0.4, 1.0),
+        )
+
+
+def _add_objects(
+    plant: MultibodyPlant, scenario: Scenario
+) -> tuple[tuple[ModelInstanceIndex, ...], tuple[RigidBody, ...]]:
+    size = scenario.object_size
+    instances, bodies = [], []
+    for o in scenario.objects:
+        instance = plant.AddModelInstance(o.name)
+        body = plant.AddRigidBody(
+            o.name, instance, SpatialInertia.SolidBoxWithMass(OBJECT_MASS, size, size, size)
+        )
+        box = Box(size, size, size)
+        plant.RegisterCollisionGeometry(
+            body,
+            RigidTransform(),
+            box,
+            "collision",
+            _object_proximity(size, scenario.table_friction),
+        )
+        plant.RegisterVisualGeometry(
+            body, RigidTransform(), box, "visual", np.append(goal_colour(o.goal), 1.0)
+        )
+        plant.SetDefaultFloatingBaseBodyPose(
+            body, RigidTransform([o.position[0], o.position[1], size / 2])
+        )
+        instances.append(instance)
+        bodies.append(body)
+    return tuple(instances), tuple(bodies)
+
+
+def _arm_geometry(plant: MultibodyPlant, joints) -> tuple[np.ndarray, tuple[float, float]]:
+    """Base positions and link lengths, read from the finalized model at q = 0."""
+    context = plant.CreateDefaultContext()
+    for arm in joints:
+        for joint in arm:
+            joint.SetPositions(context, [0.0])
+    bases, lengths = [], []
+    for shoulder, elbow, z in joints:
+
+        def xy(frame):
+            return frame.CalcPoseInWorld(context).translation()
+
+        p0 = xy(shoulder.frame_on_child())
+        p1 = xy(elbow.frame_on_child())
+        p2 = xy(z.frame_on_child())
+        if abs(p2[2]) > 1e-9:
+            raise ValueError(f"model: the hand of {z.name()} is not at z = q at q = 0 ({p2[2]})")
+        bases.append(p0[:2])
+        lengths.append((np.linalg.norm(p1[:2] - p0[:2]), np.linalg.norm(p2[:2] - p1[:2])))
+    if not np.allclose(lengths[0], lengths[1]):
+        raise ValueError(f"model: the two arms' link lengths differ: {lengths}")
+    return np.array(bases), (float(lengths[0][0]), float(lengths[0][1]))
+
+
+def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2e-3) -> Station:
+    """Adds the plant and scene graph of ``scenario`` to ``builder``; returns what was made.
+
+    The arms start at rest with the hands above ``scenario.hand_start`` at the travel height.
+    Raises ValueError if the scenario's ``arm_bases`` differ from the model's.
+    """
+    if time_step <= 0:
+        raise ValueError(f"time_step must be positive, got {time_step}")
+    config = MultibodyPlantConfig(
+        time_step=time_step,
+        discrete_contact_approximation="sap",
+        contact_model="hydroelastic_with_fallback",
+    )
+    plant, scene_graph = AddMultibodyPlant(config, builder)
+    parser = Parser(plant)
+    parser.package_map().AddMap(package_map())
+    (robot,) = parser.AddModels(url=ROBOT_URL)
+    _add_table_and_goals(plant, scenario)
+    object_instances, objects = _add_objects(plant, scenario)
+
+    joints = tuple(
+        tuple(plant.GetJointByName(f"{arm}_{name}", robot) for name in JOINTS) for arm in ARMS
+    )
+    hands = tuple(plant.GetBodyByName(f"{arm}_hand", robot) for arm in ARMS)
+    plant.Finalize()
+
+    bases, lengths = _arm_geometry(plant, joints)
+    if not np.allclose(bases, np.asarray(scenario.arm_bases, float), atol=1e-9):
+        raise ValueError(
+            f"arm_bases: the scenario has {scenario.arm_bases}, the robot model "
+            f"{bases.tolist()} (models/dual_scara.sdf is the source of the robot)"
+        )
+    travel = TRAVEL_HEIGHT
+    for i, (shoulder, elbow, z) in enumerate(joints):
+        q1, q2 = scara_ik(scenario.hand_start[i], bases[i], lengths, ELBOW_SIGNS[i])
+        shoulder.set_default_angle(q1)
+        elbow.set_default_angle(q2)
+        z.set_default_translation(travel)
+
+    canonical = [joint for arm in joints for joint in arm]
+    position_indices = tuple(j.position_start() for j in canonical)
+    actuated = [
+        plant.get_joint_actuator(a).joint().index() for a in plant.GetJointActuatorIndices(robot)
+    ]
+    actuator_order = tuple([j.index() for j in canonical].index(a) for a in actuated)
+    if sorted(actuator_order) != list(range(6)):
+        raise ValueError(f"model: expected the 6 arm joints to be actuated, got {actuated}")
+    return Station(
+        plant=plant,
+        scene_graph=scene_graph,
+        robot=robot,
+        object_instances=object_instances,
+        hands=hands,
+        objects=objects,
+        arm_joints=joints,
+        arm_bases=bases,
+        link_lengths=lengths,
+        elbow_signs=ELBOW_SIGNS,
+        position_indices=position_indices,
+        actuator_order=actuator_order,
+        grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.objects),
+        object_size=scenario.object_size,
+        grasp_height=scenario.object_size / 2,
+        travel_height=travel,
+        time_step=time_step,
+    )
+
+
+@dataclass(frozen=True)
+class ControlStack:
+    """The low-level systems :func:`AddControlStack` added. Left open for the caller:
+    ``interpolator.get_plan_input_port()`` (a TimedTrajectory) and
+    ``estimator.get_measured_state_output_port()``."""
+
+    interpolator: Interpolator
+    controller: Controller
+    gripper: Gripper
+    estimator: StateEstimator
+
+
+def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
+    """Adds and connects Interpolator → Controller → plant, Gripper ↔ plant, StateEstimator.
+
+    ::
+
+        plan ─▶ Interpolator ─hand_reference─▶ Controller ─desired_state─▶ plant
+                     │ grasp_command               ▲ plant_state             │
+                     ▼                             └─────────────────────────┤
+                  Gripper ◀─ body_poses, body_spatial_velocities ────────────┤
+                     │ spatial_forces ─▶ plant (applied_spatial_force)       │
+                     │ grasp                                                  │
+                     ▼                                                        │
+               StateEstimator ◀─ body_poses, body_spatial_velocities ────────┘
+                     │
+                     ▼ measured_state
+    """
+    plant = station.plant
+    interpolator = builder.AddNamedSystem(
+        "interpolator",
+        Interpolator(station.n_objects, station.grasp_height, station.travel_height),
+    )
+    controller = builder.AddNamedSystem(
+        "controller",
+        Controller(
+            station.arm_bases,
+            station.link_lengths,
+            station.position_indices,
+            station.actuator_order,
+            plant.num_multibody_states(),
+            station.elbow_signs,
+        ),
+    )
+    gripper = builder.AddNamedSystem(
+        "gripper",
+        Gripper(plant, station.hands, station.objects, station.grasp_half_sizes, station.time_step),
+    )
+    estimator = builder.AddNamedSystem(
+        "state_estimator", StateEstimator(station.hands, station.objects)
+    )
+    builder.Connect(
+        interpolator.get_hand_reference_output_port(), controller.get_hand_reference_input_port()
+    )
+    builder.Connect(plant.get_state_output_port(), controller.get_plant_state_input_port())
+    builder.Connect(
+        controller.get_desired_state_output_port(),
+        plant.get_desired_state_input_port(station.robot),
+    )
+    builder.Connect(
+        interpolator.get_grasp_command_output_port(), gripper.get_grasp_command_input_port()
+    )
+    for system in (gripper, estimator):
+        builder.Connect(plant.get_body_poses_output_port(), system.get_body_poses_input_port())
+        builder.Connect(
+            plant.get_body_spatial_velocities_output_port(),
+            system.get_body_spatial_velocities_input_port(),
+        )
+    builder.Connect(
+        gripper.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port()
+    )
+    builder.Connect(gripper.get_grasp_output_port(), estimator.get_grasp_input_port())
+    return ControlStack(interpolator, controller, gripper, estimator)

@@ -1,0 +1,187 @@
+"""Gripper: attaches objects to hands with a stiff in-plane spring-damper, and releases them.
+
+Weld constraints must exist before ``Finalize`` and can only be toggled from outside the Diagram;
+an off-centre weld also snaps the object across at several m/s (design §4). This gripper instead
+applies equal and opposite ``ExternallyAppliedSpatialForce``s to hand i and object j while the
+pair is attached::
+
+    F_j = −k·(Δp − d_ij) − c·Δv,      Δp = p_j − p_hand_i,  Δv = v_j − v_hand_i   (x, y only),
+
+with ``d_ij`` the in-plane offset captured at the grip instant, ``c = 2ζ·sqrt(k·m_j)``, plus a
+yaw damping torque on the object. The z direction is left to contact: a held object stays on the
+table and slides with the hand. On release the force stops and the object keeps the hand's
+velocity until table friction stops it (a throw).
+
+Pair (i, j) attaches at an update when ``grasp_command[i·N + j] > 0.5`` and hand i is inside the
+grasp box of object j: ``|Δp|∞ ≤ grasp_half_size_j + tolerance`` in the plane and within
+``height_tolerance`` of the object's centre in z (the hand has come down). It detaches as soon
+as the command drops. The attachments and offsets are discrete state, updated every
+``update_period`` (the plant's time step).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from pydrake.common.value import AbstractValue, Value
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialForce, SpatialVelocity
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+
+class Gripper(LeafSystem):
+    """Diagram-native grasping by spring-damper forces between hands and objects.
+
+    .. pydrake_system::
+
+        name: Gripper
+        input_ports:
+        - grasp_command
+        - body_poses
+        - body_spatial_velocities
+        output_ports:
+        - spatial_forces
+        - grasp
+
+    ``grasp_command`` (2N): η_ij, row-major, index ``i·N + j`` (hand i = 0 right, 1 left).
+    ``body_poses`` / ``body_spatial_velocities``: the plant's outputs of the same names.
+    ``spatial_forces``: list of ExternallyAppliedSpatialForce, for
+    ``plant.get_applied_spatial_force_input_port()``. ``grasp`` (2N, 0/1): the pairs attached now.
+
+    State: one discrete vector [attached (2N); offset (2N × 2, pair-major)].
+    """
+
+    def __init__(
+        self,
+        plant,
+        hand_bodies: Sequence,
+        object_bodies: Sequence,
+        grasp_half_sizes: Sequence[float],
+        update_period: float,
+        stiffness: float = 2000.0,
+        damping_ratio: float = 1.0,
+        tolerance: float = 0.01,
+        height_tolerance: float = 0.03,
+        yaw_time_constant: float = 0.05,
+    ):
+        super().__init__()
+        n = len(object_bodies)
+        if len(hand_bodies) != 2:
+            raise ValueError(f"hand_bodies: expected 2 (right, left), got {len(hand_bodies)}")
+        if len(grasp_half_sizes) != n:
+            raise ValueError(f"grasp_half_sizes: expected {n} values, got {len(grasp_half_sizes)}")
+        if stiffness <= 0 or update_period <= 0:
+            raise ValueError(
+                f"stiffness and update_period must be > 0: {stiffness}, {update_period}"
+            )
+        self._n = n
+        self._hands = tuple(int(b.index()) for b in hand_bodies)
+        self._hand_body_index = tuple(b.index() for b in hand_bodies)
+        self._objects = tuple(int(b.index()) for b in object_bodies)
+        self._object_body_index = tuple(b.index() for b in object_bodies)
+        self._reach = np.asarray(grasp_half_sizes, dtype=float) + tolerance
+        self._height_tolerance = height_tolerance
+        self._k = stiffness
+        masses = np.array([b.default_mass() for b in object_bodies])
+        self._c = 2.0 * damping_ratio * np.sqrt(stiffness * masses)
+        yaw_inertia = np.array(
+            [
+                b.default_spatial_inertia().CalcRotationalInertia().get_moments()[2]
+                for b in object_bodies
+            ]
+        )
+        self._c_yaw = yaw_inertia / yaw_time_constant
+
+        self._grasp_command = self.DeclareVectorInputPort("grasp_command", 2 * n)
+        self._body_poses = self.DeclareAbstractInputPort(
+            "body_poses", AbstractValue.Make([RigidTransform()])
+        )
+        self._body_velocities = self.DeclareAbstractInputPort(
+            "body_spatial_velocities", AbstractValue.Make([SpatialVelocity()])
+        )
+        self._state = self.DeclareDiscreteState(6 * n)
+        self.DeclarePeriodicDiscreteUpdateEvent(update_period, 0.0, self._update)
+        self._spatial_forces = self.DeclareAbstractOutputPort(
+            "spatial_forces",
+            lambda: Value[list[ExternallyAppliedSpatialForce]]([]),
+            self._calc_spatial_forces,
+        )
+        self._grasp = self.DeclareVectorOutputPort(
+            "grasp", BasicVector(2 * n), self._calc_grasp, {self.xd_ticket()}
+        )
+
+    def get_grasp_command_input_port(self):
+        return self._grasp_command
+
+    def get_body_poses_input_port(self):
+        return self._body_poses
+
+    def get_body_spatial_velocities_input_port(self):
+        return self._body_velocities
+
+    def get_spatial_forces_output_port(self):
+        return self._spatial_forces
+
+    def get_grasp_output_port(self):
+        return self._grasp
+
+    def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n2 = 2 * self._n
+        return x[:n2], x[n2:].reshape(n2, 2)
+
+    def _update(self, context, discrete_state):
+        x = context.get_discrete_state(self._state).get_value()
+        attached, offset = self._split(x.copy())
+        command = self._grasp_command.Eval(context) > 0.5
+        if not command.any() and not attached.any():
+            return
+        poses = self._body_poses.Eval(context)
+        for i, hand in enumerate(self._hands):
+            p_hand = poses[hand].translation()
+            for j, obj in enumerate(self._objects):
+                pair = i * self._n + j
+                if not command[pair]:
+                    attached[pair] = 0.0
+                elif attached[pair] == 0.0:
+                    d = poses[obj].translation() - p_hand
+                    if (
+                        np.max(np.abs(d[:2])) <= self._reach[j]
+                        and abs(d[2]) <= self._height_tolerance
+                    ):
+                        attached[pair] = 1.0
+                        offset[pair] = d[:2]
+        discrete_state.get_mutable_vector(self._state).SetFromVector(
+            np.concatenate([attached, offset.reshape(-1)])
+        )
+
+    def _calc_spatial_forces(self, context, output):
+        attached, offset = self._split(context.get_discrete_state(self._state).get_value())
+        forces = []
+        if attached.any():
+            poses = self._body_poses.Eval(context)
+            velocities = self._body_velocities.Eval(context)
+            for pair in np.flatnonzero(attached):
+                i, j = divmod(int(pair), self._n)
+                hand, obj = self._hands[i], self._objects[j]
+                dp = poses[obj].translation()[:2] - poses[hand].translation()[:2]
+                dv = velocities[obj].translational()[:2] - velocities[hand].translational()[:2]
+                f = np.zeros(3)
+                f[:2] = -self._k * (dp - offset[pair]) - self._c[j] * dv
+                yaw = -self._c_yaw[j] * velocities[obj].rotational()[2]
+                forces.append(self._force(self._object_body_index[j], [0.0, 0.0, yaw], f))
+                forces.append(self._force(self._hand_body_index[i], [0.0, 0.0, 0.0], -f))
+        output.set_value(forces)
+
+    @staticmethod
+    def _force(body_index, torque, force) -> ExternallyAppliedSpatialForce:
+        applied = ExternallyAppliedSpatialForce()
+        applied.body_index = body_index
+        applied.p_BoBq_B = np.zeros(3)
+        applied.F_Bq_W = SpatialForce(np.asarray(torque, float), np.asarray(force, float))
+        return applied
+
+    def _calc_grasp(self, context, output):
+        attached, _ = self._split(context.get_discrete_state(self._state).get_value())
+        output.SetFromVector(attached)
