@@ -22,7 +22,7 @@ from dualarm_mpc.ltl import Atom
 from dualarm_mpc.mld import Box, Model, State, reachability, simulate
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.solver import SolveOptions, SolveResult, Status, solve
+from dualarm_mpc.solver import SolveOptions, SolveResult, Start, Status, solve
 from dualarm_mpc.spec import Specification, rule_formulas, specification
 
 log = logging.getLogger(__name__)
@@ -113,17 +113,17 @@ def build_program(scenario: Scenario, state: State, spec: Specification, horizon
 
 
 def solve_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None = None, start: np.ndarray | None = None,
+               options: SolveOptions | None = None,
+               start: Callable[[program.HorizonVariables], Start] | None = None,
                pruning: bool | None = None) -> StepResult:
     """Build and solve one horizon; the trajectory is re-simulated from the solver's forces and
-    grasps through the model (so it is exactly the model's, not the solver's rounding)."""
+    grasps through the model (so it is exactly the model's, not the solver's rounding).
+    ``start(x)`` may give a MIP start for the horizon's variables ``x``."""
     options = options or solver_options(scenario)
     t0 = time.perf_counter()
     prog, x, model, local_state = build_program(scenario, state, spec, horizon, pruning)
     build = time.perf_counter() - t0
-    if start is not None and len(start) != prog.num_vars():
-        start = None
-    result: SolveResult = solve(prog, options, start)
+    result: SolveResult = solve(prog, options, start(x) if start else None)
     binaries = int(x.binaries.size)
     if not result.status.has_solution:
         return StepResult(result.status, horizon, None, np.inf, result.wall_time_s, build,
@@ -218,7 +218,7 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
     return f"{head}: the rules {', '.join(n for n, _ in spec.rules)} together conflict with the task"
 
 
-def _embed(scenario: Scenario, state: State, objects: list[int], local: Trajectory) -> Trajectory:
+def embed_step(scenario: Scenario, state: State, objects: list[int], local: Trajectory) -> Trajectory:
     """The step's trajectory over all objects: those outside the step stay where they are."""
     K1 = len(local.hand_pos)
     n = scenario.n_objects
@@ -250,7 +250,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         objects = select_objects(scenario, state, remaining)
         spec = specification(scenario, objects, rules=rules)
         res, total = plan_step(scenario, state, spec, options)
-        step = _embed(scenario, state, objects, res.trajectory)
+        step = embed_step(scenario, state, objects, res.trajectory)
         offset = 0 if trajectory is None else trajectory.steps
         trajectory = step if trajectory is None else trajectory.then(step)
         state = State.last(step)

@@ -103,16 +103,21 @@ def standard_form(prog: MathematicalProgram) -> StandardForm:
                         np.concatenate(ubs) if ubs else np.zeros(0), col_lb, col_ub, integer)
 
 
+# A MIP start: values of all decision variables, or (indices, values) of some of them, which
+# HiGHS completes by solving for the others.
+Start = np.ndarray | tuple[np.ndarray, np.ndarray]
+
+
 def solve(prog: MathematicalProgram, options: SolveOptions = SolveOptions(),
-          start: np.ndarray | None = None) -> SolveResult:
-    """Solve the MILP ``prog``; ``start`` is a MIP start (values of all decision variables)."""
+          start: Start | None = None) -> SolveResult:
+    """Solve the MILP ``prog`` from an optional MIP ``start``."""
     if options.backend != "highs":
         return _solve_with_drake(prog, options, start)
     return solve_standard_form(standard_form(prog), options, start)
 
 
 def solve_standard_form(f: StandardForm, options: SolveOptions,
-                        start: np.ndarray | None = None) -> SolveResult:
+                        start: Start | None = None) -> SolveResult:
     import highspy  # local: the adapter is the only place that knows the solver
 
     t0 = time.perf_counter()
@@ -142,7 +147,11 @@ def solve_standard_form(f: StandardForm, options: SolveOptions,
         highspy.HighsVarType.kInteger if b else highspy.HighsVarType.kContinuous for b in f.integer
     ]
     h.passModel(lp)
-    if start is not None:
+    if isinstance(start, tuple):
+        index, value = (np.asarray(a) for a in start)
+        value = np.clip(value, f.col_lb[index], f.col_ub[index])
+        h.setSolution(len(index), index.astype(np.int32), value.astype(float))
+    elif start is not None:
         sol = highspy.HighsSolution()
         sol.col_value = list(np.clip(start, f.col_lb, f.col_ub))
         sol.value_valid = True
@@ -178,6 +187,10 @@ def _solve_with_drake(prog, options: SolveOptions, start) -> SolveResult:
     from pydrake.solvers import GurobiSolver, MosekSolver
 
     solver = {"gurobi": GurobiSolver, "mosek": MosekSolver}[options.backend]()
+    if isinstance(start, tuple):
+        dense = np.full(prog.num_vars(), np.nan)
+        dense[start[0]] = start[1]
+        start = dense
     if not (solver.available() and solver.enabled()):
         raise RuntimeError(
             f"solver backend {options.backend!r} is not available or not licensed here; "

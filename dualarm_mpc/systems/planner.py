@@ -1,0 +1,249 @@
+"""MPC planner: the MILP planner inside the Diagram, replanning receding-horizon every Δt.
+
+Each Δt a periodic unrestricted update reads the measured state and re-solves the current
+sequential step from it (Algorithm 1, one step at a time):
+
+* the grasp in force for the next Δt is the one the previous plan committed to, so the new plan's
+  η(0) is that (a decision takes effect one step after it is made, as in the model's k = 0);
+* an object is *delivered* when it rests (speed below ``REST_SPEED``) inside its goal, unheld;
+  the step ends when m_o of its objects are delivered, and the next step selects new objects;
+* within a step the horizon recedes (T shrinks by one per replan; if the measured state makes that
+  infeasible, T grows again), MIP-started from the previous plan's grasps shifted by one step;
+* a solver time-out, an infeasible horizon or any error keeps the previous plan; every replan's
+  wall time, status and cost are recorded in the state. Nothing raises inside the simulation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from dualarm_mpc.mld import Box, State
+from dualarm_mpc.plan import TimedTrajectory, Trajectory
+from dualarm_mpc.planner import (
+    StepResult,
+    embed_step,
+    predict_horizon,
+    select_objects,
+    solve_step,
+    solver_options,
+)
+from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.spec import rule_formulas, specification
+from dualarm_mpc.systems.interpolator import empty_plan, sample_grasp
+from dualarm_mpc.systems.state_estimator import split_measured_state
+
+log = logging.getLogger(__name__)
+
+REST_SPEED = 0.01  # m/s: an object slower than this counts as resting
+STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is measurement noise
+EXTRA_STEPS = 3  # how far past the receding horizon a replan may grow T before giving up
+
+
+@dataclass(frozen=True)
+class Replan:
+    """One replan, as recorded."""
+
+    t: float
+    wall_s: float
+    status: str
+    cost: float | None
+    horizon: int | None
+    objects: tuple[int, ...]
+    delivered: int  # objects resting in their goals when it ran
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class MpcState:
+    """The planner's abstract state: the plan in force and the sequential step it serves."""
+
+    plan: TimedTrajectory
+    goals: dict[str, list[float]]
+    step_objects: tuple[int, ...] = ()
+    step_target: int = 0  # delivered count at which the current step is done
+    horizon_end: float = 0.0  # sim time at the end of the current plan's horizon
+    grasp_start: np.ndarray | None = None  # the plan's η of the step's objects, (T+1, 2, n)
+    delivered_time: tuple[float | None, ...] = ()
+    replans: tuple[Replan, ...] = field(default_factory=tuple)
+
+
+class MpcPlanner(LeafSystem):
+    """Receding-horizon LTL planner (the paper's planner in closed loop).
+
+    .. pydrake_system::
+
+        name: MpcPlanner
+        input_ports:
+        - measured_state
+        output_ports:
+        - plan
+
+    ``measured_state`` (8 + 6N): the StateEstimator's layout. ``plan``: the
+    :class:`~dualarm_mpc.plan.TimedTrajectory` in force (abstract), read from the state.
+    """
+
+    def __init__(self, scenario: Scenario, time_limit_s: float | None = None):
+        super().__init__()
+        self._scenario = scenario
+        self._options = solver_options(scenario, time_limit_s)
+        self._rules = rule_formulas(scenario)
+        n = scenario.n_objects
+        initial = MpcState(
+            plan=empty_plan(n, np.array(scenario.hand_start)),
+            goals={k: list(v) for k, v in scenario.goals.items()},
+            delivered_time=(None,) * n,
+        )
+        self._state = self.DeclareAbstractState(AbstractValue.Make(initial))
+        self._measured = self.DeclareVectorInputPort("measured_state", 8 + 6 * n)
+        self._plan = self.DeclareAbstractOutputPort(
+            "plan", lambda: AbstractValue.Make(initial.plan), self._calc_plan,
+            prerequisites_of_calc={self.abstract_state_ticket(self._state)})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(scenario.dt, 0.0, self._update)
+
+    def get_measured_state_input_port(self):
+        return self._measured
+
+    def get_plan_output_port(self):
+        return self._plan
+
+    def mpc_state(self, context) -> MpcState:
+        return context.get_abstract_state(self._state).get_value()
+
+    def set_goal(self, context, name: str, box: list[float]) -> None:
+        """Move a goal (an environment change); the planner sees it at its next replan."""
+        s = self.mpc_state(context)
+        goals = {**s.goals, name: list(box)}
+        context.get_mutable_abstract_state(self._state).set_value(
+            dataclasses.replace(s, goals=goals))
+
+    def _calc_plan(self, context, output) -> None:
+        output.set_value(self.mpc_state(context).plan)
+
+    # -- the replan ---------------------------------------------------------------------------
+
+    def _update(self, context, state) -> None:
+        t = context.get_time()
+        s = self.mpc_state(context)
+        wall0 = time.perf_counter()
+        try:
+            new = self._replan(t, s, self._measured.Eval(context))
+        except Exception as err:  # a replan must never stop the simulation
+            log.exception("replan at t=%.2f failed", t)
+            new = self._record(s, t, wall0, "error", note=f"{type(err).__name__}: {err}")
+        state.get_mutable_abstract_state(self._state).set_value(new)
+
+    def _record(self, s: MpcState, t: float, wall0: float, status: str,
+                res: StepResult | None = None, note: str = "", **changes) -> MpcState:
+        delivered = sum(d is not None for d in changes.get("delivered_time", s.delivered_time))
+        r = Replan(t=t, wall_s=time.perf_counter() - wall0, status=status,
+                   cost=None if res is None or res.trajectory is None else res.cost,
+                   horizon=None if res is None else res.horizon,
+                   objects=changes.get("step_objects", s.step_objects), delivered=delivered,
+                   note=note)
+        return dataclasses.replace(s, replans=s.replans + (r,), **changes)
+
+    def _replan(self, t: float, s: MpcState, measured: np.ndarray) -> MpcState:
+        wall0 = time.perf_counter()
+        sc = dataclasses.replace(self._scenario, goals=s.goals)
+        state = self._committed_state(t, s, measured)
+        resting = self._resting(sc, state, exhausted=t >= s.horizon_end - 1e-9)
+        delivered_time = tuple((t if d is None else d) if r else None
+                               for d, r in zip(s.delivered_time, resting, strict=True))
+        n_done = int(np.sum(resting))
+        remaining = [j for j in range(sc.n_objects) if not resting[j]]
+        if not remaining:
+            return self._record(s, t, wall0, "done", plan=_hold(t, sc.dt, state),
+                                step_objects=(), delivered_time=delivered_time)
+        new_step = (not s.step_objects or n_done >= s.step_target
+                    or not set(s.step_objects) & set(remaining))
+        if new_step:
+            objects = select_objects(sc, state, remaining)
+            target = n_done + min(sc.m_o, len(objects))
+            grasp_start = None
+        else:
+            objects = [j for j in s.step_objects if j in remaining or state.grasp[:, j].any()]
+            target = s.step_target
+            grasp_start = s.grasp_start
+        spec = specification(sc, objects, rules=self._rules)
+        spec = dataclasses.replace(spec, m_o=max(1, min(spec.m_o, target - n_done)))
+        lowest = predict_horizon(sc, state, spec)
+        receding = int(round((s.horizon_end - t) / sc.dt))
+        first = lowest if new_step or receding < 1 else max(receding, lowest)
+        start = _shifted_start(grasp_start, objects, s.step_objects) if grasp_start is not None \
+            else None
+        res = None
+        for T in range(first, min(first + EXTRA_STEPS, sc.solver.max_horizon) + 1):
+            res = solve_step(sc, state, spec, T, self._options, start=start)
+            if res.status.has_solution:
+                break
+        changes = dict(delivered_time=delivered_time, step_objects=tuple(objects),
+                       step_target=target)
+        if res is None or not res.status.has_solution:
+            status = res.status.value if res else "no_horizon"
+            return self._record(s, t, wall0, status, res,
+                                note="kept the previous plan", **changes)
+        traj = embed_step(sc, state, objects, res.trajectory)
+        plan = TimedTrajectory(t, sc.dt, traj)
+        return self._record(s, t, wall0, res.status.value, res, plan=plan,
+                            horizon_end=t + res.horizon * sc.dt,
+                            grasp_start=res.trajectory.grasp, **changes)
+
+    def _committed_state(self, t: float, s: MpcState, measured: np.ndarray) -> State:
+        """The measured state with the grasp the previous plan committed to for [t, t + Δt);
+        a held object moves with its hand, an unheld one this slow is at rest."""
+        m = split_measured_state(measured, self._scenario.n_objects)
+        n = self._scenario.n_objects
+        grasp = sample_grasp(s.plan, t).reshape(2, n).round().astype(int)
+        obj_vel = m["object_vel"].copy()
+        slow = np.linalg.norm(obj_vel, axis=1) < STILL_SPEED
+        obj_vel[slow] = 0.0
+        for i, j in zip(*np.nonzero(grasp), strict=True):
+            obj_vel[j] = m["hand_vel"][i]
+        return State(m["hand_pos"].copy(), m["hand_vel"].copy(), m["object_pos"].copy(),
+                     obj_vel, grasp)
+
+    @staticmethod
+    def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
+        """Objects at rest inside their goals; one still held counts once its plan is over (the
+        hand stopped there and lets go when it moves on)."""
+        inside = np.array([Box.of(sc.goals[o.goal]).contains(state.object_pos[j])
+                           for j, o in enumerate(sc.objects)])
+        slow = np.linalg.norm(state.object_vel, axis=1) < REST_SPEED
+        return inside & slow & (exhausted | ~state.grasp.any(axis=0))
+
+
+def _hold(t: float, dt: float, state: State) -> TimedTrajectory:
+    """A plan of one step: both hands at rest where they are, nothing held."""
+    n = len(state.object_pos)
+    traj = Trajectory(state.hand_pos[None], np.zeros((1, 2, 2)), np.zeros((0, 2, 2)),
+                      state.object_pos[None], np.zeros((1, n, 2)), np.zeros((1, 2, n), int))
+    return TimedTrajectory(t, dt, traj)
+
+
+def _shifted_start(grasp: np.ndarray, objects: list[int], previous: tuple[int, ...]):
+    """A MIP start from the previous plan's grasps, one step on (binaries only; HiGHS completes
+    the rest), for the step's objects that were in the previous plan."""
+    where = {j: n for n, j in enumerate(previous)}
+
+    def start(x):
+        index, value = [], []
+        K = len(grasp) - 1
+        for n_new, j in enumerate(objects):
+            if j not in where:
+                continue
+            for k in range(1, x.horizon + 1):
+                old = grasp[min(k + 1, K), :, where[j]]
+                index.append(x.eta[k, :, n_new])
+                value.append(old)
+        if not index:
+            return np.zeros(0, int), np.zeros(0)
+        return np.concatenate(index), np.concatenate(value).astype(float)
+
+    return start
