@@ -170,10 +170,7 @@ def _add_objects(
 
 def _arm_geometry(plant: MultibodyPlant, joints) -> tuple[np.ndarray, tuple[float, float]]:
     """Base positions and link lengths, read from the finalized model at q = 0."""
-    context = plant.CreateDefaultContext()
-    for arm in joints:
-        for joint in arm:
-            joint.SetPositions(context, [0.0])
+    context = plant.CreateDefaultContext()  # called before the arms' default angles are set
     bases, lengths = [], []
     for shoulder, elbow, z in joints:
 

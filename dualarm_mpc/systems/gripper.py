@@ -27,7 +27,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue, Value
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialForce, SpatialVelocity
-from pydrake.multibody.plant import ExternallyAppliedSpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
+from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 
@@ -55,9 +56,9 @@ class Gripper(LeafSystem):
 
     def __init__(
         self,
-        plant,
-        hand_bodies: Sequence,
-        object_bodies: Sequence,
+        plant: MultibodyPlant,
+        hand_bodies: Sequence[RigidBody],
+        object_bodies: Sequence[RigidBody],
         grasp_half_sizes: Sequence[float],
         update_period: float,
         stiffness: float = 2000.0,
@@ -68,6 +69,8 @@ class Gripper(LeafSystem):
     ):
         super().__init__()
         n = len(object_bodies)
+        if not plant.is_finalized():
+            raise ValueError("Gripper: the plant must be finalized (body indices and masses)")
         if len(hand_bodies) != 2:
             raise ValueError(f"hand_bodies: expected 2 (right, left), got {len(hand_bodies)}")
         if len(grasp_half_sizes) != n:

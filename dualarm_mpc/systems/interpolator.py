@@ -2,7 +2,8 @@
 
 The plan is a :class:`~dualarm_mpc.plan.TimedTrajectory`: step k of its trajectory happens at
 ``t_k = t0 + k·dt``. In the plane each hand follows the cubic Hermite spline through the plan's
-positions and velocities at the steps. Its height follows a separate profile:
+positions and velocities at the steps (with one exception at releases, below). Its height
+follows a separate profile:
 
 - at ``travel_height`` while the hand holds nothing;
 - at ``grasp_height`` (the object's centre) while it holds any object;
@@ -12,6 +13,10 @@ positions and velocities at the steps. Its height follows a separate profile:
 In numbers: the node height is ``z_k = grasp_height`` if hand i holds something at step k or at
 step k − 1, else ``travel_height``; between nodes a smoothstep with zero end velocities. Held
 objects stay on the table and slide with the hand (they are not lifted): that is how throws work.
+
+Release: at a step where a hand lets an object go, the spline's velocity is the hand's velocity
+of the step before, the one the released object keeps in the plan's model (see
+:func:`node_velocities`), so the object leaves the hand as the planner predicted.
 
 Grasp command: for ``t`` in ``[t_k, t_{k+1})`` it is ``grasp[k]``; after the last step K it stays
 ``grasp[K]``, before ``t0`` it is ``grasp[0]``. Outside ``[t0, t_K]`` the hand holds the first or
@@ -61,6 +66,24 @@ def sample_grasp(plan: TimedTrajectory, t: float) -> np.ndarray:
     return np.asarray(grasp[min(max(k, 0), len(grasp) - 1)], dtype=float).reshape(-1)
 
 
+def node_velocities(traj: Trajectory, k: int) -> np.ndarray:
+    """The hands' velocities (2, 2) the spline passes through at step k.
+
+    That is ``hand_vel[k]``, except for a hand that releases an object at step k (η_ij(k−1) = 1,
+    η_ij(k) = 0): there ``hand_vel[k−1]``. In the plan's Euler model (design §1) the hand moves
+    with ``v(k−1)`` all through step k − 1 and the released object keeps ``v_obj(k) = v(k−1)``,
+    so the hand must be moving at ``v(k−1)`` when the grip opens at ``t_k``; ``v(k)`` may differ
+    from it by the whole force ``u(k−1)·Δt``. Positions are unchanged.
+    """
+    v = np.array(traj.hand_vel[k], dtype=float)
+    if k > 0:
+        grasp = np.asarray(traj.grasp)
+        releases = (grasp[k - 1] > 0) & (grasp[k] == 0)  # (2, N)
+        for i in np.flatnonzero(releases.any(axis=1)):
+            v[i] = traj.hand_vel[k - 1][i]
+    return v
+
+
 def sample_hands(
     plan: TimedTrajectory, t: float, travel_height: float, grasp_height: float
 ) -> np.ndarray:
@@ -76,7 +99,7 @@ def sample_hands(
         h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
         d00, d10, d01, d11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
         p0, p1 = traj.hand_pos[k], traj.hand_pos[k + 1]
-        v0, v1 = traj.hand_vel[k], traj.hand_vel[k + 1]
+        v0, v1 = node_velocities(traj, k), node_velocities(traj, k + 1)
         out[:, 0:2] = h00 * p0 + h10 * dt * v0 + h01 * p1 + h11 * dt * v1
         out[:, 3:5] = (d00 * p0 + d10 * dt * v0 + d01 * p1 + d11 * dt * v1) / dt
     else:

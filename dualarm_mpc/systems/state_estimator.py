@@ -11,6 +11,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
+from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import LeafSystem
 
 
@@ -56,7 +57,7 @@ class StateEstimator(LeafSystem):
     1 the left, measured at the end-effector body's origin.
     """
 
-    def __init__(self, hand_bodies: Sequence, object_bodies: Sequence):
+    def __init__(self, hand_bodies: Sequence[RigidBody], object_bodies: Sequence[RigidBody]):
         super().__init__()
         if len(hand_bodies) != 2:
             raise ValueError(f"hand_bodies: expected 2 (right, left), got {len(hand_bodies)}")

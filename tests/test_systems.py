@@ -1,0 +1,353 @@
+"""Tests of the Drake side: robot model, station, and the low-level systems (design §4)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantValueSource
+
+from dualarm_mpc.plan import TimedTrajectory, Trajectory
+from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
+from dualarm_mpc.scenario import ObjectSpec, Scenario, load_scenario
+from dualarm_mpc.station import AddControlStack, AddStation, goal_colour
+from dualarm_mpc.systems.controller import (
+    Controller,
+    scara_fk,
+    scara_ik,
+    scara_jacobian,
+    scara_joint_velocity,
+)
+from dualarm_mpc.systems.gripper import Gripper
+from dualarm_mpc.systems.interpolator import (
+    TRAVEL_HEIGHT,
+    Interpolator,
+    empty_plan,
+    node_velocities,
+    sample_grasp,
+    sample_hands,
+)
+from dualarm_mpc.systems.state_estimator import (
+    StateEstimator,
+    measured_state_size,
+    split_measured_state,
+)
+
+G = 9.81
+GRASP_HEIGHT = 0.025
+
+
+def one_object_scenario(friction: float = 0.02) -> Scenario:
+    return Scenario(
+        goals={"red": [0.2, 0.4, 0.5, 0.7]},
+        objects=[ObjectSpec(name="box", position=[0.1, 0.1], goal="red")],
+        table_friction=friction,
+    )
+
+
+def right_hand_plan(nodes, grasps, t0: float = 0.0) -> TimedTrajectory:
+    """One object; the right hand visits ``nodes`` [(p, v)], the left rests at (−0.1, 0)."""
+    k = len(nodes) - 1
+    hand_pos = np.array([[p, [-0.1, 0.0]] for p, _ in nodes], dtype=float)
+    hand_vel = np.array([[v, [0.0, 0.0]] for _, v in nodes], dtype=float)
+    grasp = np.zeros((k + 1, 2, 1), dtype=int)
+    grasp[:, 0, 0] = grasps
+    trajectory = Trajectory(
+        hand_pos=hand_pos,
+        hand_vel=hand_vel,
+        force=np.zeros((k, 2, 2)),
+        object_pos=np.zeros((k + 1, 1, 2)),
+        object_vel=np.zeros((k + 1, 1, 2)),
+        grasp=grasp,
+    )
+    return TimedTrajectory(t0=t0, dt=1.0, trajectory=trajectory)
+
+
+class Rig:
+    """Station + control stack fed by a constant plan, ready to simulate."""
+
+    def __init__(self, scenario: Scenario, plan: TimedTrajectory):
+        builder = DiagramBuilder()
+        self.station = AddStation(builder, scenario)
+        self.stack = AddControlStack(builder, self.station)
+        source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan)))
+        builder.Connect(source.get_output_port(), self.stack.interpolator.get_plan_input_port())
+        self.diagram = builder.Build()
+        self.simulator = Simulator(self.diagram)
+        self.simulator.Initialize()
+        self.n = scenario.n_objects
+
+    def measured(self) -> dict[str, np.ndarray]:
+        estimator = self.stack.estimator
+        context = estimator.GetMyContextFromRoot(self.simulator.get_context())
+        x = estimator.get_measured_state_output_port().Eval(context)
+        return split_measured_state(x, self.n)
+
+    def advance(self, t: float) -> dict[str, np.ndarray]:
+        self.simulator.AdvanceTo(t)
+        return self.measured()
+
+
+# --- model and resources -----------------------------------------------------------------------
+
+
+def test_model_loads_from_installed_package():
+    assert (models_dir() / "package.xml").is_file()
+    assert package_map().GetPath("dualarm_mpc") == str(models_dir())
+    plant = MultibodyPlant(2e-3)
+    parser = Parser(plant)
+    parser.package_map().AddMap(package_map())
+    (robot,) = parser.AddModels(url=ROBOT_URL)
+    plant.Finalize()
+    actuators = [plant.get_joint_actuator(a) for a in plant.GetJointActuatorIndices(robot)]
+    assert sorted(a.joint().name() for a in actuators) == sorted(
+        f"{arm}_{j}" for arm in ("right", "left") for j in ("shoulder", "elbow", "z")
+    )
+    assert all(a.get_controller_gains().p > 0 and a.get_controller_gains().d > 0 for a in actuators)
+    assert plant.get_desired_state_input_port(robot).size() == 12
+    assert plant.HasBodyNamed("right_hand", robot) and plant.HasBodyNamed("left_hand", robot)
+
+
+def test_station_reads_the_model_and_places_objects():
+    scenario = load_scenario("table1_vc")
+    station = AddStation(DiagramBuilder(), scenario)
+    np.testing.assert_allclose(station.arm_bases, [[0.3, 0.3], [-0.3, 0.3]])
+    assert station.link_lengths == pytest.approx((0.7, 0.7))
+    assert [b.name() for b in station.objects] == [o.name for o in scenario.objects]
+    assert station.plant.time_step() == pytest.approx(2e-3)
+    context = station.plant.CreateDefaultContext()
+    for body, spec in zip(station.objects, scenario.objects, strict=True):
+        p = station.plant.EvalBodyPoseInWorld(context, body).translation()
+        np.testing.assert_allclose(p, [*spec.position, scenario.object_size / 2], atol=1e-12)
+    for hand, start in zip(station.hands, scenario.hand_start, strict=True):
+        p = station.plant.EvalBodyPoseInWorld(context, hand).translation()
+        np.testing.assert_allclose(p, [*start, TRAVEL_HEIGHT], atol=1e-12)
+    assert goal_colour("red") != goal_colour("green") != goal_colour("blue")
+    assert goal_colour("purple") == goal_colour("anything else")
+
+
+def test_station_rejects_arm_bases_that_differ_from_the_model():
+    scenario = one_object_scenario()
+    scenario.arm_bases = [[0.4, 0.3], [-0.3, 0.3]]
+    with pytest.raises(ValueError, match="arm_bases"):
+        AddStation(DiagramBuilder(), scenario)
+
+
+def test_ik_round_trip_through_the_plant_over_the_workspace():
+    """FK(IK(p)) == p with the plant's own kinematics, for both arms, on a grid of the hand
+    range [-0.9, 0.9] × [-0.3, 0.9]; the elbows are on opposite sides."""
+    station = AddStation(DiagramBuilder(), one_object_scenario())
+    plant = station.plant
+    context = plant.CreateDefaultContext()
+    q = plant.GetPositions(context)
+    grid = [(x, y) for x in np.linspace(-0.9, 0.9, 13) for y in np.linspace(-0.3, 0.9, 9)]
+    for i, hand in enumerate(station.hands):
+        base = station.arm_bases[i]
+        for p in grid:
+            angles = scara_ik(p, base, station.link_lengths, station.elbow_signs[i])
+            assert np.sign(angles[1]) in (0, station.elbow_signs[i])
+            np.testing.assert_allclose(scara_fk(angles, base, station.link_lengths), p, atol=1e-9)
+            q[list(station.position_indices[3 * i : 3 * i + 3])] = [*angles, 0.07]
+            plant.SetPositions(context, q)
+            x = plant.EvalBodyPoseInWorld(context, hand).translation()
+            np.testing.assert_allclose(x, [*p, 0.07], atol=1e-9)
+
+
+def test_joint_velocity_inverts_the_jacobian():
+    q = np.array([0.3, -1.2])
+    v = np.array([0.2, -0.1])
+    qd = scara_joint_velocity(q, v, (0.7, 0.7))
+    np.testing.assert_allclose(scara_jacobian(q, (0.7, 0.7)) @ qd, v, atol=1e-5)
+
+
+# --- shapes --------------------------------------------------------------------------------------
+
+
+def test_interpolator_shape():
+    system = Interpolator(n_objects=3, grasp_height=GRASP_HEIGHT)
+    assert system.get_plan_input_port().get_name() == "plan"
+    assert system.get_hand_reference_output_port().get_name() == "hand_reference"
+    assert system.get_hand_reference_output_port().size() == 12
+    assert system.get_grasp_command_output_port().get_name() == "grasp_command"
+    assert system.get_grasp_command_output_port().size() == 6
+    assert system.num_input_ports() == 1 and system.num_output_ports() == 2
+    with pytest.raises(ValueError, match="grasp_height"):
+        Interpolator(n_objects=3, grasp_height=0.2, travel_height=0.1)
+
+
+def test_controller_shape():
+    system = Controller([[0.3, 0.3], [-0.3, 0.3]], (0.7, 0.7), range(6), range(6), 20)
+    assert system.get_hand_reference_input_port().get_name() == "hand_reference"
+    assert system.get_hand_reference_input_port().size() == 12
+    assert system.get_plant_state_input_port().get_name() == "plant_state"
+    assert system.get_plant_state_input_port().size() == 20
+    assert system.get_desired_state_output_port().get_name() == "desired_state"
+    assert system.get_desired_state_output_port().size() == 12
+    with pytest.raises(ValueError, match="actuator_order"):
+        Controller([[0.3, 0.3], [-0.3, 0.3]], (0.7, 0.7), range(6), [0, 0, 1, 2, 3, 4], 20)
+
+
+def test_gripper_and_estimator_shapes():
+    station = AddStation(DiagramBuilder(), load_scenario("table1_vc"))
+    n = station.n_objects
+    gripper = Gripper(station.plant, station.hands, station.objects, station.grasp_half_sizes, 2e-3)
+    assert gripper.get_grasp_command_input_port().get_name() == "grasp_command"
+    assert gripper.get_grasp_command_input_port().size() == 2 * n
+    assert gripper.get_body_poses_input_port().get_name() == "body_poses"
+    assert gripper.get_body_spatial_velocities_input_port().get_name() == "body_spatial_velocities"
+    assert gripper.get_spatial_forces_output_port().get_name() == "spatial_forces"
+    assert gripper.get_grasp_output_port().get_name() == "grasp"
+    assert gripper.get_grasp_output_port().size() == 2 * n
+    assert gripper.CreateDefaultContext().num_discrete_state_groups() == 1
+
+    estimator = StateEstimator(station.hands, station.objects)
+    assert estimator.get_body_poses_input_port().get_name() == "body_poses"
+    assert estimator.get_grasp_input_port().size() == 2 * n
+    assert estimator.get_measured_state_output_port().get_name() == "measured_state"
+    assert estimator.get_measured_state_output_port().size() == measured_state_size(n) == 8 + 6 * n
+
+
+# --- interpolator and controller semantics -----------------------------------------------------
+
+
+def test_interpolator_follows_the_plan_and_the_height_profile():
+    a, b = np.array([0.1, 0.1]), np.array([0.3, 0.6])
+    nodes = [([0.1, 0.0], [0, 0]), (a, [0, 0]), ((a + b) / 2, 0.75 * (b - a)), (b, [0, 0])]
+    plan = right_hand_plan([*nodes, (b, [0, 0]), (b, [0, 0])], [0, 1, 1, 1, 0, 0], t0=2.0)
+    traj = plan.trajectory
+    for k in range(6):
+        ref = sample_hands(plan, 2.0 + k, TRAVEL_HEIGHT, GRASP_HEIGHT).reshape(2, 6)
+        np.testing.assert_allclose(ref[:, 0:2], traj.hand_pos[k], atol=1e-12)
+        if k < 5:
+            np.testing.assert_allclose(ref[:, 3:5], traj.hand_vel[k], atol=1e-12)
+        np.testing.assert_array_equal(sample_grasp(plan, 2.0 + k + 0.5), traj.grasp[k].reshape(-1))
+    z = [sample_hands(plan, 2.0 + k, TRAVEL_HEIGHT, GRASP_HEIGHT)[2] for k in range(7)]
+    # down for the grasp at k = 1 (descends during step 0), up again after the release at k = 4
+    assert z == pytest.approx([0.1, 0.025, 0.025, 0.025, 0.025, 0.1, 0.1])
+    assert sample_hands(plan, 2.5, TRAVEL_HEIGHT, GRASP_HEIGHT)[5] < 0  # descending
+    assert sample_hands(plan, 6.5, TRAVEL_HEIGHT, GRASP_HEIGHT)[5] > 0  # rising
+    # before t0 and after the end: hold the first / last position at rest, grasp[0] / grasp[K]
+    np.testing.assert_allclose(sample_hands(plan, 0.0, 0.1, 0.025)[[0, 1, 3, 4]], [0.1, 0, 0, 0])
+    np.testing.assert_allclose(sample_hands(plan, 99.0, 0.1, 0.025)[[0, 1, 3, 4]], [*b, 0, 0])
+    np.testing.assert_array_equal(sample_grasp(plan, 99.0), [0, 0])
+    np.testing.assert_array_equal(sample_grasp(plan, 3.0), [1, 0])  # step boundary belongs to k
+
+
+def test_interpolator_releases_with_the_velocity_of_the_step_before():
+    nodes = [([0.1, 0.1], [0, 0.3]), ([0.1, 0.4], [0, 0]), ([0.1, 0.4], [0, 0])]
+    held = right_hand_plan(nodes, [1, 1, 1])
+    released = right_hand_plan(nodes, [1, 0, 0])
+    assert sample_hands(held, 1.0, TRAVEL_HEIGHT, GRASP_HEIGHT)[4] == pytest.approx(0.0)
+    assert sample_hands(released, 1.0, TRAVEL_HEIGHT, GRASP_HEIGHT)[4] == pytest.approx(0.3)
+    np.testing.assert_allclose(node_velocities(released.trajectory, 1), [[0, 0.3], [0, 0]])
+    for t in (0.0, 1.0, 2.0):  # positions at the steps are the plan's
+        ref = sample_hands(released, t, TRAVEL_HEIGHT, GRASP_HEIGHT).reshape(2, 6)
+        np.testing.assert_allclose(ref[:, :2], released.trajectory.hand_pos[int(t)], atol=1e-12)
+
+
+def test_interpolator_system_matches_the_sampler():
+    plan = right_hand_plan([([0.1, 0.0], [0, 0]), ([0.1, 0.1], [0, 0])], [0, 1])
+    system = Interpolator(n_objects=1, grasp_height=GRASP_HEIGHT)
+    context = system.CreateDefaultContext()
+    system.get_plan_input_port().FixValue(context, AbstractValue.Make(plan))
+    context.SetTime(0.3)
+    np.testing.assert_allclose(
+        system.get_hand_reference_output_port().Eval(context),
+        sample_hands(plan, 0.3, TRAVEL_HEIGHT, GRASP_HEIGHT),
+    )
+    np.testing.assert_array_equal(system.get_grasp_command_output_port().Eval(context), [0, 0])
+    system.get_plan_input_port().FixValue(context, AbstractValue.Make(empty_plan(2)))
+    with pytest.raises(ValueError, match="2 objects"):
+        system.get_grasp_command_output_port().Eval(context)
+
+
+def test_controller_output_reaches_the_reference_and_unwraps():
+    bases, lengths = [[0.3, 0.3], [-0.3, 0.3]], (0.7, 0.7)
+    order = [3, 4, 5, 0, 1, 2]  # a permuted port, to check the bookkeeping
+    system = Controller(bases, lengths, range(6), order, 12)
+    context = system.CreateDefaultContext()
+    ref = np.array([0.2, -0.1, 0.05, 0.1, 0.0, 0.02, -0.4, 0.5, 0.1, 0.0, -0.2, 0.0])
+    system.get_hand_reference_input_port().FixValue(context, ref)
+    measured = np.zeros(12)
+    measured[0] = 4 * np.pi  # the right shoulder has turned twice
+    system.get_plant_state_input_port().FixValue(context, measured)
+    out = system.get_desired_state_output_port().Eval(context)
+    q = np.empty(6)
+    v = np.empty(6)
+    q[order], v[order] = out[:6], out[6:]
+    assert 3 * np.pi < q[0] < 5 * np.pi
+    for i in range(2):
+        np.testing.assert_allclose(
+            scara_fk(q[3 * i : 3 * i + 2], bases[i], lengths), ref[6 * i : 6 * i + 2]
+        )
+        assert q[3 * i + 2] == ref[6 * i + 2] and v[3 * i + 2] == ref[6 * i + 5]
+        J = scara_jacobian(q[3 * i : 3 * i + 2], lengths)
+        np.testing.assert_allclose(J @ v[3 * i : 3 * i + 2], ref[6 * i + 3 : 6 * i + 5], atol=1e-5)
+    assert q[1] < 0 < q[4]  # right elbow sign −1, left +1
+
+
+# --- physics -----------------------------------------------------------------------------------
+
+
+def test_measured_state_at_rest_matches_the_scenario():
+    scenario = load_scenario("table1_vc")
+    rig = Rig(scenario, empty_plan(scenario.n_objects, np.array(scenario.hand_start)))
+    x = rig.advance(0.2)
+    np.testing.assert_allclose(x["hand_pos"], scenario.hand_start, atol=1e-4)
+    np.testing.assert_allclose(x["object_pos"], [o.position for o in scenario.objects], atol=1e-4)
+    np.testing.assert_allclose(x["object_vel"], 0.0, atol=1e-3)
+    np.testing.assert_array_equal(x["grasp"], 0.0)
+
+
+def test_pick_drag_and_release_at_rest():
+    """The right hand goes to the object at (0.1, 0.1), grasps it, drags it to (0.3, 0.6) and
+    releases it at rest: the object stays there."""
+    a, b = np.array([0.1, 0.1]), np.array([0.3, 0.6])
+    nodes = [([0.1, 0.0], [0, 0]), (a, [0, 0]), ((a + b) / 2, 0.75 * (b - a)), (b, [0, 0])]
+    plan = right_hand_plan([*nodes, (b, [0, 0]), (b, [0, 0])], [0, 1, 1, 1, 0, 0])
+    rig = Rig(one_object_scenario(), plan)
+    held = rig.advance(2.5)
+    assert held["grasp"][0, 0] == 1 and held["grasp"][1, 0] == 0
+    np.testing.assert_allclose(held["object_pos"][0], held["hand_pos"][0], atol=1e-3)
+    x = rig.advance(6.5)
+    assert x["grasp"][0, 0] == 0
+    np.testing.assert_allclose(x["object_pos"][0], b, atol=0.01)
+    np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
+
+
+def test_throw_slides_v2_over_2_mu_g_and_stops():
+    """A plan in the Euler model (p(k+1) = p(k) + v(k)): the hand drags the object at v = 0.3
+    during step 2 and releases it at step 3, where the plan's own hand velocity is already 0.
+    The object leaves at v (the model's v_obj(3) = v_hand(2)), slides v²/(2μg) and stops."""
+    mu, v = 0.02, 0.3
+    nodes = [
+        ([0.1, 0.0], [0, 0.1]),
+        ([0.1, 0.1], [0, 0.15]),  # grasp begins
+        ([0.1, 0.25], [0, v]),
+        ([0.1, 0.55], [0, 0]),  # released here, at t = 3
+        ([0.1, 0.55], [0, 0]),
+        ([0.1, 0.55], [0, 0]),
+    ]
+    rig = Rig(one_object_scenario(mu), right_hand_plan(nodes, [0, 1, 1, 0, 0, 0]))
+    at_release = rig.advance(3.0)
+    assert at_release["grasp"][0, 0] == 1
+    assert np.linalg.norm(at_release["object_vel"][0]) == pytest.approx(v, rel=0.02)
+    assert rig.advance(3.01)["grasp"][0, 0] == 0
+    x = rig.advance(5.5)
+    slide = x["object_pos"][0] - at_release["object_pos"][0]
+    assert slide[1] == pytest.approx(v**2 / (2 * mu * G), rel=0.05)
+    assert abs(slide[0]) < 2e-3
+    np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
+
+
+def test_gripper_does_not_grab_an_object_out_of_reach():
+    """Commanded to grasp while the hand is 10 cm away: nothing attaches, the object stays."""
+    plan = right_hand_plan([([0.1, 0.0], [0, 0]), ([0.1, 0.0], [0, 0])], [1, 1])
+    rig = Rig(one_object_scenario(), plan)
+    x = rig.advance(1.0)
+    np.testing.assert_array_equal(x["grasp"], 0.0)
+    np.testing.assert_allclose(x["object_pos"][0], [0.1, 0.1], atol=1e-4)
