@@ -1,0 +1,356 @@
+"""Table II of the paper (§V-D): mean total cost and solve time of sequential transportation.
+
+What it measures: for each (m_o, n_o) row, rule and seed, the scenario ``table1_vd`` (ten objects
+uniform in [-0.25, 0.25]² from the seed, reachable goals, delivery ``reach`` as in the paper) is
+planned with :func:`dualarm_mpc.planner.plan` and every plan is checked with
+:func:`dualarm_mpc.verify.verify`. "Time" is the plan's total solve time: build and solve of every
+horizon tried in every sequential step (the paper's "calculation time"). Means are over the runs
+that produced a verified plan; planning errors, verification failures and runs stopped by
+``--run-budget`` are counted apart and never stop the bench.
+
+Run it (from the repository root)::
+
+    .venv/bin/python bench/table2.py                                  # the whole grid, ~hours
+    .venv/bin/python bench/table2.py --rows 2,5 2,6 --rules 1 --seeds 3 --time-limit 10
+    .venv/bin/python bench/table2.py --rows 2,6 --seeds 0-2 --compare-forms
+
+One line per finished run goes to stderr; the Markdown tables go to stdout and next to the JSON
+(``--json``, default bench/results/table2.json, rewritten after every run), which holds every
+run's record, the summary rows, the machine and the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import json
+import os
+import platform
+import signal
+import statistics
+import subprocess
+import sys
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import dualarm_mpc
+from dualarm_mpc.mld import State
+from dualarm_mpc.planner import PlanningError, plan, predict_horizon
+from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.spec import specification
+from dualarm_mpc.verify import verify
+
+SCENARIO = "table1_vd"
+ROWS = ((2, 5), (2, 6), (2, 10), (3, 5), (3, 6))
+FORMS = ("counting", "subsets")
+# Table II of the paper (design §5): (cost, time in s) per row and rule; CPLEX, 3.3 GHz Xeon.
+PAPER = {
+    (2, 5): {1: (9.03, 2.52), 2: (8.79, 11.3)},
+    (2, 6): {1: (9.70, 2.54), 2: (9.07, 11.7)},
+    (2, 10): {1: (9.80, 2.78), 2: (9.04, 16.9)},
+    (3, 5): {1: (12.68, 2700.0), 2: (8.96, 19.7)},
+    (3, 6): {1: (12.51, 3640.0), 2: (8.81, 26.4)},
+}
+
+
+# --- command line ------------------------------------------------------------------------------
+
+
+def parse_row(text: str) -> tuple[int, int]:
+    try:
+        m_o, n_o = (int(v) for v in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected m_o,n_o (e.g. 2,5), got {text!r}") from err
+    return m_o, n_o
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-9`` (a range), ``0,3,7`` (a list) or ``10`` (a count: seeds 0..9)."""
+    try:
+        if "-" in text:
+            lo, hi = (int(v) for v in text.split("-"))
+            return list(range(lo, hi + 1))
+        if "," in text:
+            return [int(v) for v in text.split(",")]
+        return list(range(int(text)))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected 0-9, 0,3,7 or a count, got {text!r}") from err
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--rows", nargs="+", type=parse_row, default=list(ROWS), metavar="M,N",
+                   help="(m_o, n_o) rows, e.g. --rows 2,5 2,6 (default: all five)")
+    p.add_argument("--rules", nargs="+", type=int, choices=(1, 2), default=[1, 2])
+    p.add_argument("--seeds", type=parse_seeds, default=list(range(10)),
+                   help="0-9, 0,3,7 or a count (default 0-9)")
+    p.add_argument("--time-limit", type=float, default=30.0, help="seconds per MILP solve")
+    p.add_argument("--task-form", choices=FORMS, default="counting",
+                   help="phi_task as sum(ev_j) >= m_o (counting) or eq. (13) literally (subsets)")
+    p.add_argument("--compare-forms", action="store_true",
+                   help="run both task forms and add a table comparing them")
+    p.add_argument("--run-budget", type=float, default=None, metavar="S",
+                   help="stop a run after S s of wall time (checked between solves, so a run "
+                        "can overshoot by one solve); default: no budget")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="runs in parallel processes (default 1: timing on an idle core)")
+    p.add_argument("--json", type=Path, default=Path("bench/results/table2.json"))
+    return p.parse_args(argv)
+
+
+def grid(args: argparse.Namespace) -> list[dict]:
+    forms = FORMS if args.compare_forms else (args.task_form,)
+    return [
+        {"m_o": m, "n_o": n, "rule": rule, "seed": seed, "task_form": form,
+         "time_limit_s": args.time_limit, "run_budget_s": args.run_budget}
+        for (m, n) in args.rows for rule in args.rules for seed in args.seeds for form in forms
+    ]
+
+
+# --- one run -----------------------------------------------------------------------------------
+
+
+class RunBudgetExceeded(Exception):
+    """The run's wall-time budget ran out (raised between two solves)."""
+
+
+def _out_of_budget(signum, frame):
+    raise RunBudgetExceeded
+
+
+def predicted_horizons(scenario, result) -> list[int]:
+    """predictT of each sequential step, from the state the step started in: the horizon the
+    planner tried first (the horizons between it and the accepted one were infeasible or timed
+    out)."""
+    t = result.trajectory
+    out, k = [], 0
+    for seg in result.segments:
+        state = State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k], t.grasp[k])
+        out.append(predict_horizon(scenario, state, specification(scenario, seg.objects)))
+        k += seg.horizon
+    return out
+
+
+def step_records(scenario, result, segments) -> list[dict]:
+    """The sequential steps run so far, with predictT where the plan is complete."""
+    steps = [s.to_json() for s in segments]
+    if result is not None:
+        for step, first in zip(steps, predicted_horizons(scenario, result), strict=True):
+            step["predicted_horizon"] = first
+    return steps
+
+
+def run_one(task: dict) -> dict:
+    """Plan and verify one (row, rule, seed, form); always returns a record, never raises."""
+    overrides = {k: task[k] for k in ("m_o", "n_o", "rule", "seed", "task_form")}
+    overrides |= {"delivery": "reach", "solver": {"time_limit_s": task["time_limit_s"]}}
+    record = dict(task, status="error", message="", cost=None, solve_time_s=None)
+    segments, result, scenario = [], None, None
+    if task["run_budget_s"]:
+        signal.signal(signal.SIGALRM, _out_of_budget)
+        signal.setitimer(signal.ITIMER_REAL, task["run_budget_s"])
+    t0 = time.perf_counter()
+    try:
+        scenario = load_scenario(SCENARIO, overrides)
+        result = plan(scenario, progress=segments.append)
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        check = verify(scenario, result)
+        record.update(status="ok" if check.ok else "verify_failed", problems=check.problems,
+                      cost=result.total_cost, solve_time_s=result.total_solve_time_s)
+    except PlanningError as err:
+        record.update(status="planning_error", message=str(err))
+    except RunBudgetExceeded:
+        record.update(status="run_budget", message=f"stopped after {task['run_budget_s']} s")
+    except Exception:  # a bug in one run must not end the bench: record it and go on
+        record.update(message=traceback.format_exc(limit=3))
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+    record["wall_time_s"] = time.perf_counter() - t0
+    record["load_avg_1min"] = os.getloadavg()[0]  # other work on the machine skews the times
+    record["steps"] = step_records(scenario, result, segments)
+    return record
+
+
+def run_all(tasks: list[dict], jobs: int):
+    """Yield records as runs finish: in order in this process, or in ``jobs`` processes."""
+    if jobs <= 1:
+        yield from map(run_one, tasks)
+        return
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for future in as_completed([pool.submit(run_one, t) for t in tasks]):
+            yield future.result()
+
+
+def progress_line(k: int, n: int, r: dict) -> str:
+    head = (f"[{k}/{n}] ({r['m_o']},{r['n_o']}) rule {r['rule']} seed {r['seed']} "
+            f"{r['task_form']}")
+    steps = r["steps"]
+    optimal = sum(s["status"] == "optimal" for s in steps)
+    if r["status"] in ("ok", "verify_failed"):
+        verified = "verified" if r["status"] == "ok" else "VERIFY FAILED: " + r["problems"][0]
+        return (f"{head}: cost {r['cost']:.3f}  time {r['solve_time_s']:.1f} s  "
+                f"optimal {optimal}/{len(steps)} steps  {verified}")
+    return (f"{head}: {r['status'].upper()} after {r['wall_time_s']:.1f} s, {len(steps)} steps: "
+            f"{r['message'].strip().splitlines()[-1]}")
+
+
+# --- summary -----------------------------------------------------------------------------------
+
+
+def summarize(records: list[dict], key: tuple) -> dict:
+    """One summary row over the runs of ``key`` = (m_o, n_o, rule, task_form)."""
+    runs = [r for r in records if (r["m_o"], r["n_o"], r["rule"], r["task_form"]) == key]
+    ok = [r for r in runs if r["status"] == "ok"]
+    steps = [s for r in ok for s in r["steps"]]
+    times = [r["solve_time_s"] for r in ok]
+    paper_cost, paper_time = PAPER.get(key[:2], {}).get(key[2], (None, None))
+    mean_cost = statistics.fmean(r["cost"] for r in ok) if ok else None
+    mean_time = statistics.fmean(times) if ok else None
+    return {
+        "m_o": key[0], "n_o": key[1], "rule": key[2], "task_form": key[3],
+        "runs": len(runs), "ok": len(ok),
+        "planning_errors": sum(r["status"] == "planning_error" for r in runs),
+        "verify_failures": sum(r["status"] == "verify_failed" for r in runs),
+        "run_budget_stops": sum(r["status"] == "run_budget" for r in runs),
+        "other_errors": sum(r["status"] == "error" for r in runs),
+        "mean_cost": mean_cost, "paper_cost": paper_cost,
+        "cost_ratio": mean_cost / paper_cost if ok and paper_cost else None,
+        "mean_time_s": mean_time, "paper_time_s": paper_time,
+        "time_ratio": mean_time / paper_time if ok and paper_time else None,
+        "median_time_s": statistics.median(times) if ok else None,
+        "max_time_s": max(times) if ok else None,
+        "steps": len(steps),
+        "steps_optimal": sum(s["status"] == "optimal" for s in steps),
+        "steps_at_limit": sum(s["status"] == "feasible" for s in steps),
+        "extra_horizon_tries": sum(s["horizon"] - s["predicted_horizon"] for s in steps),
+    }
+
+
+def summary_rows(records: list[dict]) -> list[dict]:
+    keys = {(r["m_o"], r["n_o"], r["rule"], FORMS.index(r["task_form"])) for r in records}
+    return [summarize(records, (*key[:3], FORMS[key[3]])) for key in sorted(keys)]
+
+
+def fmt(value, spec: str = ".2f") -> str:
+    return "—" if value is None else format(value, spec)
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def table2(summary: list[dict], form: str) -> str:
+    """The paper's Table II next to ours, for one task form."""
+    header = ["(m_o,n_o)", "rule", "runs", "our mean cost", "paper cost", "cost ratio",
+              "our mean time (s)", "paper time (s)", "time ratio", "steps proven optimal"]
+    rows = [[f"({s['m_o']},{s['n_o']})", str(s["rule"]), f"{s['ok']}/{s['runs']}",
+             fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]), fmt(s["cost_ratio"]),
+             fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".3g"), fmt(s["time_ratio"]),
+             f"{s['steps_optimal']}/{s['steps']}"]
+            for s in summary if s["task_form"] == form]
+    return table(header, rows)
+
+
+def detail(summary: list[dict]) -> str:
+    """Where the time goes and what failed, per row, rule and form."""
+    header = ["(m_o,n_o)", "rule", "form", "planning errors", "verify failures",
+              "run-budget stops", "other errors", "steps stopped at time limit",
+              "extra horizon tries", "median time (s)", "max time (s)"]
+    rows = [[f"({s['m_o']},{s['n_o']})", str(s["rule"]), s["task_form"],
+             str(s["planning_errors"]), str(s["verify_failures"]), str(s["run_budget_stops"]),
+             str(s["other_errors"]), str(s["steps_at_limit"]), str(s["extra_horizon_tries"]),
+             fmt(s["median_time_s"], ".1f"), fmt(s["max_time_s"], ".1f")]
+            for s in summary]
+    return table(header, rows)
+
+
+def forms_table(records: list[dict]) -> str:
+    """Counting vs. subsets form of φ_task on the same (row, rule, seed) — both runs verified."""
+    by = {(r["m_o"], r["n_o"], r["rule"], r["seed"], r["task_form"]): r for r in records}
+    pairs: dict[tuple, list] = {}
+    for (m, n, rule, seed, form), r in by.items():
+        other = by.get((m, n, rule, seed, "subsets"))
+        if form == "counting" and other and r["status"] == other["status"] == "ok":
+            pairs.setdefault((m, n, rule), []).append((r, other))
+    header = ["(m_o,n_o)", "rule", "paired runs", "counting time (s)", "subsets time (s)",
+              "subsets / counting", "counting cost", "subsets cost"]
+    rows = []
+    for (m, n, rule), runs in pairs.items():
+        tc, ts = (statistics.fmean(p[i]["solve_time_s"] for p in runs) for i in (0, 1))
+        cc, cs = (statistics.fmean(p[i]["cost"] for p in runs) for i in (0, 1))
+        rows.append([f"({m},{n})", str(rule), str(len(runs)), f"{tc:.1f}", f"{ts:.1f}",
+                     f"{ts / tc:.2f}", f"{cc:.3f}", f"{cs:.3f}"])
+    return table(header, rows)
+
+
+def report(records: list[dict], args: argparse.Namespace) -> str:
+    summary = summary_rows(records)
+    forms = FORMS if args.compare_forms else (args.task_form,)
+    parts = []
+    for form in forms:
+        parts += [f"Table II, task form {form}, time limit {args.time_limit:g} s per solve "
+                  f"(runs = verified plans / runs):", "", table2(summary, form), ""]
+    parts += ["Detail:", "", detail(summary), ""]
+    if args.compare_forms:
+        parts += ["Task forms (runs where both forms gave a verified plan):", "",
+                  forms_table(records), ""]
+    return "\n".join(parts)
+
+
+# --- output ------------------------------------------------------------------------------------
+
+
+def git(package: Path, *args: str) -> str | None:
+    out = subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True)
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def machine() -> dict:
+    """The machine and the code measured: where ``dualarm_mpc`` was imported from, its commit and
+    uncommitted changes (None outside a git checkout, e.g. a snapshot)."""
+    package = Path(dualarm_mpc.__file__).parent
+    return {
+        "platform": platform.platform(), "processor": platform.processor(),
+        "cpu_count": os.cpu_count(), "python": sys.version.split()[0],
+        "highspy": importlib.metadata.version("highspy"),
+        "drake": importlib.metadata.version("drake"),
+        "dualarm_mpc": str(package), "git_commit": git(package, "rev-parse", "HEAD"),
+        "git_changes": git(package, "status", "--porcelain", "--", "."),
+    }
+
+
+def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
+               complete: bool) -> None:
+    """Written after every run (``complete`` false until the last), atomically."""
+    options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    data = {"scenario": SCENARIO, "options": options, "machine": info, "complete": complete,
+            "summary": summary_rows(records), "runs": records}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    tmp.replace(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    tasks = grid(args)
+    info = machine()
+    records: list[dict] = []
+    t0 = time.perf_counter()
+    for k, record in enumerate(run_all(tasks, args.jobs), 1):
+        records.append(record)
+        print(progress_line(k, len(tasks), record), file=sys.stderr, flush=True)
+        write_json(args.json, args, records, info, complete=k == len(tasks))
+    text = report(records, args) + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
+    print(text)
+    args.json.with_suffix(".md").write_text(text)
+    print(f"wrote {args.json} and {args.json.with_suffix('.md')}", file=sys.stderr)
+    bad = sum(r["status"] == "verify_failed" for r in records)
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
