@@ -95,6 +95,37 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from dualarm_mpc.simulate import simulate
+
+    # On the robot "delivered" means at rest in the goal, aimed a little inside it.
+    overrides = {"delivery": "rest", "goal_margin": 0.03, **_overrides(args)}
+    scenario = load_scenario(args.scenario, overrides)
+    print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.rule}, "
+          f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")
+    print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")
+
+    def progress(r) -> None:
+        names = ",".join(scenario.objects[j].name.removeprefix("object") for j in r.objects)
+        print(f"{r.t:>7.1f}  {r.delivered:>5}/{scenario.n_objects:<3}  {r.status:<10} "
+              f"{r.horizon if r.horizon is not None else '-':>3}  {r.wall_s:>9.3f}  {names}"
+              + (f"  ({r.note})" if r.note else ""), flush=True)
+
+    summary = simulate(scenario, args.duration, args.html, progress)
+    n_in = sum(d is not None for d in summary.delivered_time_s)
+    print(f"end: t = {summary.sim_time_s:.1f} s, {n_in}/{scenario.n_objects} objects resting in "
+          f"their goals, real-time factor {summary.realtime_factor:.2f}")
+    if args.summary:
+        summary.save(args.summary)
+        print(f"wrote {args.summary}")
+    if args.html:
+        print(f"wrote {args.html} (open it in a browser; press play in the Animations panel)")
+    if not summary.all_delivered:
+        print("error: not every object ends at rest inside its goal", file=sys.stderr)
+        return 4
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="dualarm-mpc", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true")
@@ -104,6 +135,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", help="write the plan JSON here")
     p.add_argument("--plot", help="write a PNG of the plan here")
     p.set_defaults(run=cmd_plan)
+    p = sub.add_parser("simulate", help="run the receding-horizon planner on the robot in Drake")
+    _scenario_arguments(p)
+    p.add_argument("--duration", type=float, help="simulated seconds (default: by object count)")
+    p.add_argument("--html", help="write the self-contained Meshcat replay here")
+    p.add_argument("--summary", help="write the summary JSON here")
+    p.set_defaults(run=cmd_simulate)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")

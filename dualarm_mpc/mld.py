@@ -50,6 +50,10 @@ class Box:
         p = np.asarray(p)
         return np.all((p >= self.lo - tol) & (p <= self.hi + tol), axis=-1)
 
+    def shrink(self, margin: float) -> Box:
+        """The box with ``margin`` taken off every side."""
+        return Box(self.lo + margin, self.hi - margin)
+
     def bounds(self) -> list[float]:
         return [float(self.lo[0]), float(self.hi[0]), float(self.lo[1]), float(self.hi[1])]
 
@@ -113,7 +117,8 @@ class Model:
             u_max=scenario.max_force,
             hand_gap=scenario.hand_gap,
             workspace=Box.of(scenario.workspace),
-            goals=tuple(Box.of(scenario.goals[scenario.objects[j].goal]) for j in objects),
+            goals=tuple(Box.of(scenario.goals[scenario.objects[j].goal]).shrink(scenario.goal_margin)
+                        for j in objects),
             grasp_half=np.array([scenario.objects[j].grasp_half_size for j in objects], float),
         )
 

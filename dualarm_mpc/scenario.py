@@ -91,7 +91,11 @@ class Scenario:
     pruning: bool = True
     solver: SolverOptions = field(default_factory=SolverOptions)
     events: list[Event] = field(default_factory=list)
-    table_friction: float = 0.02
+    table_friction: float = 0.0  # Coulomb μ of table and objects
+    # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
+    # one-step slide when τ = Δt (see systems/gripper.py). None: Coulomb friction only.
+    slide_time_constant: float | None = 1.0
+    goal_margin: float = 0.0  # the planner aims this far inside each goal box (closed loop)
     object_size: float = 0.05
 
     @property
@@ -249,6 +253,12 @@ def validate(s: Scenario) -> None:
     for key in ("dt", "max_speed", "max_force", "object_size"):
         if getattr(s, key) <= 0:
             raise ScenarioError(f"{key}: must be positive, got {getattr(s, key)!r}")
+    if s.slide_time_constant is not None and s.slide_time_constant <= 0:
+        raise ScenarioError(f"slide_time_constant: must be positive, got {s.slide_time_constant}")
+    if s.table_friction < 0:
+        raise ScenarioError(f"table_friction: must be >= 0, got {s.table_friction}")
+    if s.goal_margin < 0:
+        raise ScenarioError(f"goal_margin: must be >= 0, got {s.goal_margin}")
     if s.hand_gap < 0:
         raise ScenarioError(f"hand_gap: must be >= 0, got {s.hand_gap!r}")
     _box(s.workspace, "workspace")
@@ -261,6 +271,8 @@ def validate(s: Scenario) -> None:
         raise ScenarioError("goals: at least one goal region is needed")
     for name, box in s.goals.items():
         _box(box, f"goals.{name}")
+        if 2 * s.goal_margin >= min(box[1] - box[0], box[3] - box[2]):
+            raise ScenarioError(f"goal_margin: {s.goal_margin} leaves nothing of goals.{name}")
     if not s.objects:
         raise ScenarioError("objects: no objects (give objects or random_objects)")
     names = set()

@@ -87,6 +87,7 @@ class Station:
     grasp_height: float  # hand height when it holds an object: the object's centre
     travel_height: float  # hand height when it holds nothing
     time_step: float
+    slide_time_constant: float | None  # the table's viscous drag on sliding objects (Gripper)
 
     @property
     def n_objects(self) -> int:
@@ -254,6 +255,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         grasp_height=scenario.object_size / 2,
         travel_height=travel,
         time_step=time_step,
+        slide_time_constant=scenario.slide_time_constant,
     )
 
 
@@ -303,7 +305,8 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
     )
     gripper = builder.AddNamedSystem(
         "gripper",
-        Gripper(plant, station.hands, station.objects, station.grasp_half_sizes, station.time_step),
+        Gripper(plant, station.hands, station.objects, station.grasp_half_sizes, station.time_step,
+                slide_time_constant=station.slide_time_constant),
     )
     estimator = builder.AddNamedSystem(
         "state_estimator", StateEstimator(station.hands, station.objects)

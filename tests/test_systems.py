@@ -41,11 +41,13 @@ G = 9.81
 GRASP_HEIGHT = 0.025
 
 
-def one_object_scenario(friction: float = 0.02) -> Scenario:
+def one_object_scenario(friction: float = 0.02, slide_time_constant: float | None = None
+                        ) -> Scenario:
     return Scenario(
         goals={"red": [0.2, 0.4, 0.5, 0.7]},
         objects=[ObjectSpec(name="box", position=[0.1, 0.1], goal="red")],
         table_friction=friction,
+        slide_time_constant=slide_time_constant,
     )
 
 
@@ -319,29 +321,44 @@ def test_pick_drag_and_release_at_rest():
     np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
 
 
-def test_throw_slides_v2_over_2_mu_g_and_stops():
-    """A plan in the Euler model (p(k+1) = p(k) + v(k)): the hand drags the object at v = 0.3
-    during step 2 and releases it at step 3, where the plan's own hand velocity is already 0.
-    The object leaves at v (the model's v_obj(3) = v_hand(2)), slides v²/(2μg) and stops."""
-    mu, v = 0.02, 0.3
+def _throw(scenario: Scenario, v: float):
+    """A plan in the Euler model (p(k+1) = p(k) + v(k)): the hand drags the object at v during
+    step 2 and releases it at step 3, where the plan's own hand velocity is already 0; the object
+    leaves at v (the model's v_obj(3) = v_hand(2)). Returns (state at release, state at t=8)."""
     nodes = [
         ([0.1, 0.0], [0, 0.1]),
         ([0.1, 0.1], [0, 0.15]),  # grasp begins
         ([0.1, 0.25], [0, v]),
-        ([0.1, 0.55], [0, 0]),  # released here, at t = 3
-        ([0.1, 0.55], [0, 0]),
-        ([0.1, 0.55], [0, 0]),
+        ([0.1, 0.25 + v], [0, 0]),  # released here, at t = 3
+        ([0.1, 0.25 + v], [0, 0]),
+        ([0.1, 0.25 + v], [0, 0]),
     ]
-    rig = Rig(one_object_scenario(mu), right_hand_plan(nodes, [0, 1, 1, 0, 0, 0]))
+    rig = Rig(scenario, right_hand_plan(nodes, [0, 1, 1, 0, 0, 0]))
     at_release = rig.advance(3.0)
     assert at_release["grasp"][0, 0] == 1
     assert np.linalg.norm(at_release["object_vel"][0]) == pytest.approx(v, rel=0.02)
     assert rig.advance(3.01)["grasp"][0, 0] == 0
-    x = rig.advance(5.5)
+    return at_release, rig.advance(8.0)
+
+
+def test_throw_with_coulomb_friction_slides_v2_over_2_mu_g_and_stops():
+    mu, v = 0.02, 0.3
+    at_release, x = _throw(one_object_scenario(mu), v)
     slide = x["object_pos"][0] - at_release["object_pos"][0]
     assert slide[1] == pytest.approx(v**2 / (2 * mu * G), rel=0.05)
     assert abs(slide[0]) < 2e-3
     np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
+
+
+@pytest.mark.parametrize("v", [0.2, 0.4])
+def test_throw_on_the_viscous_table_slides_v_dt_at_any_speed(v):
+    """The table's drag (τ = Δt = 1 s, no Coulomb friction): the slide is v·Δt, the planner's
+    one-step slide, whatever the release speed (to 1 % once the object has come to rest)."""
+    at_release, x = _throw(one_object_scenario(0.0, slide_time_constant=1.0), v)
+    slide = x["object_pos"][0] - at_release["object_pos"][0]
+    assert slide[1] == pytest.approx(v * 1.0, rel=0.01)
+    assert abs(slide[0]) < 2e-3
+    assert np.linalg.norm(x["object_vel"][0]) < 0.01
 
 
 def test_gripper_does_not_grab_an_object_out_of_reach():

@@ -10,7 +10,13 @@ pair is attached::
 with ``d_ij`` the in-plane offset captured at the grip instant, ``c = 2ζ·sqrt(k·m_j)``, plus a
 yaw damping torque on the object. The z direction is left to contact: a held object stays on the
 table and slides with the hand. On release the force stops and the object keeps the hand's
-velocity until table friction stops it (a throw).
+velocity until the table stops it (a throw).
+
+The table (``slide_time_constant`` τ): an object that no hand holds feels the table's viscous
+drag ``F = −m·v/τ`` in the plane, so from speed v it slides ``v·τ`` — with τ = Δt, exactly the
+one-step slide of the planner's object model at *every* speed (design §1). Coulomb friction alone
+gives v²/(2μg), which matches v·Δt at one speed only: a throw at 0.35 m/s with μ tuned for
+0.5 m/s fell 10–15 cm short of the plan, beyond the hands' reach (measured).
 
 Pair (i, j) attaches at an update when ``grasp_command[i·N + j] > 0.5`` and hand i is inside the
 grasp box of object j: ``|Δp|∞ ≤ grasp_half_size_j + tolerance`` in the plane and within
@@ -66,6 +72,7 @@ class Gripper(LeafSystem):
         tolerance: float = 0.01,
         height_tolerance: float = 0.03,
         yaw_time_constant: float = 0.05,
+        slide_time_constant: float | None = None,
     ):
         super().__init__()
         n = len(object_bodies)
@@ -89,6 +96,8 @@ class Gripper(LeafSystem):
         self._k = stiffness
         masses = np.array([b.default_mass() for b in object_bodies])
         self._c = 2.0 * damping_ratio * np.sqrt(stiffness * masses)
+        self._drag = np.zeros(len(masses)) if slide_time_constant is None else (
+            masses / slide_time_constant)
         yaw_inertia = np.array(
             [
                 b.default_spatial_inertia().CalcRotationalInertia().get_moments()[2]
@@ -162,6 +171,13 @@ class Gripper(LeafSystem):
     def _calc_spatial_forces(self, context, output):
         attached, offset = self._split(context.get_discrete_state(self._state).get_value())
         forces = []
+        held = attached.reshape(2, self._n).any(axis=0)
+        if self._drag.any() and not held.all():
+            velocities = self._body_velocities.Eval(context)
+            for j in np.flatnonzero(~held):
+                v = velocities[self._objects[j]].translational()
+                f = np.array([-self._drag[j] * v[0], -self._drag[j] * v[1], 0.0])
+                forces.append(self._force(self._object_body_index[j], [0.0, 0.0, 0.0], f))
         if attached.any():
             poses = self._body_poses.Eval(context)
             velocities = self._body_velocities.Eval(context)

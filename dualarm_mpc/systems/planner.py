@@ -197,9 +197,15 @@ class MpcPlanner(LeafSystem):
 
     def _committed_state(self, t: float, s: MpcState, measured: np.ndarray) -> State:
         """The measured state with the grasp the previous plan committed to for [t, t + Δt);
-        a held object moves with its hand, an unheld one this slow is at rest."""
-        m = split_measured_state(measured, self._scenario.n_objects)
-        n = self._scenario.n_objects
+        a held object moves with its hand, an unheld one this slow is at rest. Tracking errors
+        that put a hand a hair outside its bounds are clipped back (else every horizon would be
+        infeasible)."""
+        sc = self._scenario
+        m = split_measured_state(measured, sc.n_objects)
+        n = sc.n_objects
+        ws = Box.of(sc.workspace)
+        m["hand_pos"] = np.clip(m["hand_pos"], ws.lo, ws.hi)
+        m["hand_vel"] = np.clip(m["hand_vel"], -sc.max_speed, sc.max_speed)
         grasp = sample_grasp(s.plan, t).reshape(2, n).round().astype(int)
         obj_vel = m["object_vel"].copy()
         slow = np.linalg.norm(obj_vel, axis=1) < STILL_SPEED

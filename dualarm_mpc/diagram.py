@@ -1,0 +1,48 @@
+"""The closed-loop Diagram: station, control stack and MPC planner, built in one straight line.
+
+::
+
+    MpcPlanner ─plan─▶ Interpolator ─▶ Controller ─▶ MultibodyPlant ◀─▶ Gripper
+        ▲                                                  │
+        └──────────── measured_state ◀── StateEstimator ◀──┘
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pydrake.geometry import Meshcat
+from pydrake.systems.framework import Diagram, DiagramBuilder
+
+from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.station import AddControlStack, AddStation, ControlStack, Station
+from dualarm_mpc.systems.planner import MpcPlanner
+
+
+@dataclass(frozen=True)
+class DualArm:
+    """The built Diagram and the handles a simulation needs."""
+
+    diagram: Diagram
+    station: Station
+    stack: ControlStack
+    planner: MpcPlanner
+
+
+def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
+                time_step: float = 2e-3) -> DualArm:
+    """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there."""
+    builder = DiagramBuilder()
+    station = AddStation(builder, scenario, time_step)
+    stack = AddControlStack(builder, station)
+    planner = builder.AddNamedSystem("mpc_planner", MpcPlanner(scenario))
+    builder.Connect(stack.estimator.get_measured_state_output_port(),
+                    planner.get_measured_state_input_port())
+    builder.Connect(planner.get_plan_output_port(), stack.interpolator.get_plan_input_port())
+    if meshcat is not None:
+        from pydrake.visualization import AddDefaultVisualization
+
+        AddDefaultVisualization(builder, meshcat)
+    diagram = builder.Build()
+    diagram.set_name("dualarm_mpc")
+    return DualArm(diagram, station, stack, planner)

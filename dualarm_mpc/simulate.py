@@ -1,0 +1,140 @@
+"""Closed-loop simulation of a scenario: the Diagram run in time, environment events, summary JSON.
+
+Progress is reported per replan (sim time, objects delivered, solve wall time); the run stops
+when every object rests in its goal (plus a short settle) or at ``duration``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialVelocity
+from pydrake.systems.analysis import Simulator
+
+from dualarm_mpc import recording
+from dualarm_mpc.diagram import MakeDiagram
+from dualarm_mpc.mld import Box
+from dualarm_mpc.scenario import Event, Scenario
+from dualarm_mpc.systems.planner import Replan
+
+SETTLE_S = 2.0  # simulated seconds after the last delivery, to see that objects stay at rest
+
+
+@dataclass(frozen=True)
+class Summary:
+    goals: dict[str, list[float]]
+    objects: list[dict]
+    final_object_pos: list[list[float]]
+    final_object_speed: list[float]
+    delivered_time_s: list[float | None]
+    replans: list[dict]
+    realtime_factor: float
+    sim_time_s: float
+    wall_time_s: float
+    all_delivered: bool
+    events: list[dict]
+
+    def to_json(self) -> dict:
+        return dict(self.__dict__)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_json(), indent=1))
+
+
+def default_duration(scenario: Scenario) -> float:
+    """Long enough for the sequential steps with room for replanning."""
+    return 30.0 + 15.0 * scenario.n_objects * scenario.dt
+
+
+def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
+    """An environment change: knock an object to a new place, or move a goal."""
+    plant = dual.station.plant
+    if event.kind == "move_object":
+        j = [o.name for o in scenario.objects].index(event.target)
+        body = dual.station.objects[j]
+        pc = plant.GetMyMutableContextFromRoot(context)
+        z = plant.EvalBodyPoseInWorld(pc, body).translation()[2]
+        plant.SetFreeBodyPose(pc, body, RigidTransform([*event.position, z]))
+        plant.SetFreeBodySpatialVelocity(body, SpatialVelocity.Zero(), pc)
+    else:
+        dual.planner.set_goal(dual.planner.GetMyMutableContextFromRoot(context), event.target,
+                              event.box)
+        if meshcat is not None:
+            recording.show_goal(meshcat, event.target, event.box, context.get_time())
+
+
+def simulate(scenario: Scenario, duration: float | None = None, html: str | Path | None = None,
+             progress: Callable[[Replan], None] | None = None) -> Summary:
+    """Run the closed loop; write the Meshcat replay to ``html`` if given."""
+    duration = default_duration(scenario) if duration is None else duration
+    meshcat = recording.start_meshcat() if html else None
+    dual = MakeDiagram(scenario, meshcat)
+    simulator = Simulator(dual.diagram)
+    context = simulator.get_mutable_context()
+    planner_context = dual.planner.GetMyContextFromRoot(context)
+    if meshcat is not None:
+        recording.start_recording(meshcat)
+    events = sorted(scenario.events, key=lambda e: e.time)
+    wall0 = time.perf_counter()
+    simulator.Initialize()
+    seen = 0
+    finished_at = None
+    t = 0.0
+    while t < duration - 1e-9:
+        stop = min(t + scenario.dt, duration)
+        for e in events:
+            if t < e.time <= stop:
+                simulator.AdvanceTo(e.time)
+                _apply(e, scenario, dual, context, meshcat)
+        simulator.AdvanceTo(stop)
+        t = stop
+        replans = dual.planner.mpc_state(planner_context).replans
+        for r in replans[seen:]:
+            if progress:
+                progress(r)
+        seen = len(replans)
+        pending = [e for e in events if e.time > t]
+        if replans and replans[-1].status == "done" and not pending:
+            finished_at = finished_at if finished_at is not None else t
+            if t - finished_at >= SETTLE_S:
+                break
+        else:
+            finished_at = None
+    wall = time.perf_counter() - wall0
+    if meshcat is not None:
+        recording.save_recording(meshcat, html)
+    return _summary(scenario, dual, context, t, wall)
+
+
+def _summary(scenario: Scenario, dual, context, t: float, wall: float) -> Summary:
+    plant = dual.station.plant
+    pc = plant.GetMyContextFromRoot(context)
+    s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
+    pos = np.array([plant.EvalBodyPoseInWorld(pc, b).translation() for b in dual.station.objects])
+    speed = [float(np.linalg.norm(plant.EvalBodySpatialVelocityInWorld(pc, b).translational()))
+             for b in dual.station.objects]
+    inside = [bool(Box.of(s.goals[o.goal]).contains(pos[j, :2]))
+              for j, o in enumerate(scenario.objects)]
+    resting = [inside[j] and speed[j] < 0.01 for j in range(scenario.n_objects)]
+    return Summary(
+        goals=s.goals,
+        objects=[{"name": o.name, "goal": o.goal} for o in scenario.objects],
+        final_object_pos=np.round(pos, 6).tolist(),
+        final_object_speed=[round(v, 6) for v in speed],
+        delivered_time_s=[None if d is None else round(d, 3) for d in s.delivered_time],
+        replans=[{"t": round(r.t, 3), "wall_s": round(r.wall_s, 4), "status": r.status,
+                  "cost": r.cost, "horizon": r.horizon,
+                  "objects": [scenario.objects[j].name for j in r.objects],
+                  "delivered": r.delivered, "note": r.note} for r in s.replans],
+        realtime_factor=round(t / wall, 4) if wall > 0 else float("inf"),
+        sim_time_s=round(t, 3),
+        wall_time_s=round(wall, 3),
+        all_delivered=all(resting),
+        events=[e.__dict__ for e in scenario.events],
+    )
