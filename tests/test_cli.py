@@ -1,0 +1,190 @@
+"""Tests for dualarm_mpc.cli: ``dualarm-mpc plan`` writes the plan JSON of the issue and a PNG, and
+fails with the reason (never a traceback) on a bad scenario or an infeasible task."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dualarm_mpc.cli import main
+from dualarm_mpc.plan import Plan
+from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.verify import verify
+
+SCENARIO = """\
+name: cli_small
+goals:
+  red: [0.2, 0.4, 0.5, 0.7]
+  blue: [-0.4, -0.2, 0.5, 0.7]
+objects:
+  - {name: object1, position: [0.1, 0.1], goal: red}
+  - {name: object2, position: [-0.1, 0.2], goal: blue}
+  - {name: object3, position: [0.0, 0.1], goal: red, grasp_half_size: 0.04}
+rule: 1
+m_o: 2
+n_o: 3
+solver: {time_limit_s: 10, max_horizon: 15}
+"""
+
+# The plan JSON of the issue, field by field.
+TOP = {
+    "dt",
+    "rule",
+    "delivery",
+    "goals",
+    "objects",
+    "workspace",
+    "trajectory",
+    "delivered_step",
+    "segments",
+    "total_cost",
+    "total_solve_time_s",
+}
+OBJECT = {"name", "goal", "grasp_half_size"}
+TRAJECTORY = {"hand_pos", "hand_vel", "force", "object_pos", "object_vel", "grasp"}
+SEGMENT = {"objects", "delivered", "horizon", "status", "solve_time_s", "cost"}
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    scenario = d / "small.yaml"
+    scenario.write_text(SCENARIO)
+    out, png = d / "plan.json", d / "plan.png"
+    code = main(["plan", str(scenario), "--out", str(out), "--plot", str(png)])
+    return code, scenario, out, png
+
+
+def test_plan_exits_zero_and_writes_both_files(planned, capsys) -> None:
+    code, _, out, png = planned
+    assert code == 0
+    assert out.is_file() and png.is_file()
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert png.stat().st_size > 10_000
+
+
+def test_plan_json_has_exactly_the_issues_fields(planned) -> None:
+    data = json.loads(planned[2].read_text())
+    found = {"plan": set(data), "trajectory": set(data["trajectory"])}
+    found |= {f"objects[{n}]": set(o) for n, o in enumerate(data["objects"])}
+    found |= {f"segments[{n}]": set(s) for n, s in enumerate(data["segments"])}
+    expected = {"plan": TOP, "trajectory": TRAJECTORY}
+    expected |= {k: OBJECT for k in found if k.startswith("objects")}
+    expected |= {k: SEGMENT for k in found if k.startswith("segments")}
+    diff = {
+        k: {"missing": sorted(expected[k] - v), "extra": sorted(v - expected[k])}
+        for k, v in found.items()
+        if v != expected[k]
+    }
+    assert not diff, diff
+
+
+def test_plan_json_values(planned) -> None:
+    _, scenario_path, out, _ = planned
+    data = json.loads(out.read_text())
+    assert data["dt"] == 1.0 and data["rule"] == 1 and data["delivery"] == "reach"
+    assert data["goals"] == {"red": [0.2, 0.4, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]}
+    assert data["objects"] == [
+        {"name": "object1", "goal": "red", "grasp_half_size": 0.05},
+        {"name": "object2", "goal": "blue", "grasp_half_size": 0.05},
+        {"name": "object3", "goal": "red", "grasp_half_size": 0.04},
+    ]
+    assert data["workspace"] == [-0.9, 0.9, 0.0, 0.9]
+    t = {k: np.asarray(v) for k, v in data["trajectory"].items()}
+    K, N = len(t["force"]), 3
+    assert K == sum(s["horizon"] for s in data["segments"]) > 0
+    assert t["hand_pos"].shape == t["hand_vel"].shape == (K + 1, 2, 2)
+    assert t["force"].shape == (K, 2, 2)
+    assert t["object_pos"].shape == t["object_vel"].shape == (K + 1, N, 2)
+    assert t["grasp"].shape == (K + 1, 2, N)
+    assert set(np.unique(t["grasp"])) <= {0, 1}
+    assert all(isinstance(g, int) for g in np.ravel(data["trajectory"]["grasp"]).tolist())
+    assert len(data["delivered_step"]) == N
+    assert all(isinstance(k, int) and 0 <= k <= K for k in data["delivered_step"])
+    delivered = sorted(j for s in data["segments"] for j in s["delivered"])
+    assert delivered == [0, 1, 2]
+    for s in data["segments"]:
+        assert s["status"] == "optimal"
+        assert isinstance(s["horizon"], int) and s["horizon"] > 0
+        assert s["solve_time_s"] >= 0 and s["cost"] >= 0
+        assert set(s["delivered"]) <= set(s["objects"]) <= {0, 1, 2}
+    assert data["total_cost"] == pytest.approx(sum(s["cost"] for s in data["segments"]))
+    assert data["total_cost"] == pytest.approx(np.abs(t["force"]).sum(), abs=1e-6)
+    assert data["total_solve_time_s"] == pytest.approx(
+        sum(s["solve_time_s"] for s in data["segments"]), abs=1e-3
+    )
+    # The file is a plan the oracle accepts.
+    scenario = load_scenario(str(scenario_path))
+    check = verify(scenario, Plan.from_json(data))
+    assert check.ok, check.problems
+
+
+def test_plan_prints_a_table_and_the_verdict(tmp_path, capsys) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    assert main(["plan", str(path), "--rule", "2", "--set", "delivery: rest"]) == 0
+    out = capsys.readouterr().out
+    assert "rule 2" in out and "delivery rest" in out and "verified" in out
+
+
+@pytest.mark.parametrize(
+    ("args", "field"),
+    [
+        (["--set", "max_speed: fast"], "max_speed"),
+        (["--set", "solver: {time_limt_s: 3}"], "solver.time_limt_s"),
+        (["--set", "objects: [{name: a, position: [0, 0], goal: purple}]"], "objects[0].goal"),
+        (["--mo", "4"], "m_o"),
+    ],
+)
+def test_bad_scenario_value_exits_nonzero_naming_the_field(tmp_path, capsys, args, field) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    code = main(["plan", str(path), *args])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert field in err and "error" in err
+
+
+def test_bad_value_in_the_file_exits_nonzero(tmp_path, capsys) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO.replace("rule: 1", "rule: 5"))
+    assert main(["plan", str(path)]) != 0
+    assert "rule" in capsys.readouterr().err
+
+
+def test_missing_scenario_file_exits_nonzero(tmp_path, capsys) -> None:
+    assert main(["plan", str(tmp_path / "nope.yaml")]) != 0
+    assert "nope.yaml" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("rule", "named"),
+    [("G ((", "rules[0]"), ("F foo", "foo"), ("G !theta[1]", "theta[1]")],
+)
+def test_bad_rule_exits_nonzero_with_the_reason(tmp_path, capsys, rule, named) -> None:
+    """A rule that does not parse, names an unknown atom or negates a goal atom is a user error:
+    a non-zero exit with the reason on stderr, not a traceback."""
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    code = main(["plan", str(path), "--set", f"rules: ['{rule}']"])
+    err = capsys.readouterr().err
+    assert code != 0 and named in err
+
+
+def test_infeasible_task_exits_nonzero_with_the_reason(tmp_path, capsys) -> None:
+    path = tmp_path / "far.yaml"
+    path.write_text(
+        "name: far\n"
+        "goals: {red: [0.225, 0.575, 1.15, 1.45]}\n"
+        "objects: [{name: object1, position: [0.1, 0.1], goal: red}]\n"
+        "max_speed: 0.5\nmax_force: 0.5\nrule: 1\nm_o: 1\nn_o: 1\n"
+        "solver: {max_horizon: 8}\n"
+    )
+    out = tmp_path / "plan.json"
+    code = main(["plan", str(path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code != 0
+    assert "no-throw" in err and "object1" in err
+    assert not out.exists()

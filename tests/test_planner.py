@@ -1,0 +1,328 @@
+"""Tests for dualarm_mpc.planner and dualarm_mpc.verify: whole plans, checked by an oracle that can
+fail (re-simulation + direct LTL evaluation), and the reasons given when there is no plan."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from dualarm_mpc import planner
+from dualarm_mpc.mld import Box, State
+from dualarm_mpc.plan import Plan, Segment, Trajectory
+from dualarm_mpc.planner import PlanningError, plan
+from dualarm_mpc.scenario import Scenario, apply_overrides, load_scenario
+from dualarm_mpc.spec import specification
+from dualarm_mpc.verify import verify
+
+TOL = 1e-6
+
+
+def two_objects(**overrides) -> Scenario:
+    """Two objects, reachable goals that need a real carry (0.3–0.4 m)."""
+    data = {
+        "name": "two",
+        "goals": {"red": [0.2, 0.4, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]},
+        "objects": [
+            {"name": "object1", "position": [0.1, 0.1], "goal": "red"},
+            {"name": "object2", "position": [-0.1, 0.2], "goal": "blue"},
+        ],
+        "m_o": 2,
+        "n_o": 2,
+        "solver": {"time_limit_s": 10.0},
+    }
+    return apply_overrides(Scenario(), {**data, **overrides})
+
+
+def assert_every_object_rests_in_its_goal(scenario: Scenario, p: Plan) -> None:
+    t = p.trajectory
+    for j, o in enumerate(scenario.objects):
+        goal = Box.of(scenario.goals[o.goal])
+        assert goal.contains(t.object_pos[-1, j], TOL), (o.name, t.object_pos[-1, j], o.goal)
+        np.testing.assert_allclose(t.object_vel[-1, j], 0.0, atol=TOL, err_msg=o.name)
+
+
+def in_goal(scenario: Scenario, t: Trajectory, j: int) -> np.ndarray:
+    return Box.of(scenario.goals[scenario.objects[j].goal]).contains(t.object_pos[:, j], TOL)
+
+
+# --- plans that work ------------------------------------------------------------------------------
+
+
+@pytest.fixture(
+    scope="module",
+    params=[(1, "rest"), (2, "rest"), (1, "reach"), (2, "reach")],
+    ids=lambda p: f"rule{p[0]}-{p[1]}",
+)
+def two_object_plan(request):
+    rule, delivery = request.param
+    scenario = two_objects(rule=rule, delivery=delivery)
+    return scenario, plan(scenario)
+
+
+def test_two_object_plan_is_verified_and_delivers(two_object_plan) -> None:
+    scenario, p = two_object_plan
+    check = verify(scenario, p)
+    assert check.ok, check.problems
+    assert_every_object_rests_in_its_goal(scenario, p)
+    t = p.trajectory
+    assert t.grasp[:, :, 0].any() and t.grasp[:, :, 1].any()  # both were carried
+    assert sum(s.horizon for s in p.segments) == t.steps
+    assert sorted(j for s in p.segments for j in s.delivered) == [0, 1]
+    assert all(s.status == "optimal" for s in p.segments)
+    assert p.total_cost == pytest.approx(np.abs(t.force).sum(), abs=1e-6)
+    assert p.total_cost > 0.3  # the forces really moved the hands
+    assert p.rule == scenario.rule and p.delivery == scenario.delivery
+
+
+def test_two_object_plan_trajectory_shapes(two_object_plan) -> None:
+    _, p = two_object_plan
+    t = p.trajectory
+    K = t.steps
+    assert t.hand_pos.shape == t.hand_vel.shape == (K + 1, 2, 2)
+    assert t.force.shape == (K, 2, 2)
+    assert t.object_pos.shape == t.object_vel.shape == (K + 1, 2, 2)
+    assert t.grasp.shape == (K + 1, 2, 2)
+    np.testing.assert_allclose(t.hand_pos[0], [[0.1, 0.0], [-0.1, 0.0]])
+
+
+def test_delivered_step_is_when_the_object_is_in_its_goal(two_object_plan) -> None:
+    """delivered_step[j]: the (first) step of the plan at which object j is in its goal."""
+    scenario, p = two_object_plan
+    for j in range(scenario.n_objects):
+        k = p.delivered_step[j]
+        inside = in_goal(scenario, p.trajectory, j)
+        assert k is not None and inside[k], (j, k, inside.astype(int))
+        assert not inside[:k].any() or scenario.delivery == "reach"
+
+
+def test_plan_round_trips_through_json(two_object_plan, tmp_path) -> None:
+    scenario, p = two_object_plan
+    path = tmp_path / "plan.json"
+    p.save(path)
+    q = Plan.load(path)
+    for a, b in zip(p.trajectory.arrays(), q.trajectory.arrays(), strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-8)
+    assert verify(scenario, q).ok
+    assert q.segments == [
+        dataclasses.replace(s, solve_time_s=round(s.solve_time_s, 4), cost=round(s.cost, 9))
+        for s in p.segments
+    ]
+
+
+def test_objects_already_in_their_goal_need_no_step() -> None:
+    scenario = two_objects(
+        objects=[
+            {"name": "object1", "position": [0.3, 0.6], "goal": "red"},
+            {"name": "object2", "position": [-0.1, 0.2], "goal": "blue"},
+        ],
+        m_o=1,
+    )
+    p = plan(scenario)
+    assert verify(scenario, p).ok
+    assert p.delivered_step[0] == 0
+    assert all(s.objects == [1] for s in p.segments)
+    np.testing.assert_allclose(
+        p.trajectory.object_pos[:, 0], [[0.3, 0.6]] * (p.trajectory.steps + 1)
+    )
+
+
+def test_horizon_is_the_smallest_feasible_one() -> None:
+    scenario = two_objects(rule=2)
+    state = State.initial(scenario)
+    spec = specification(scenario, [0, 1])
+    res, _ = planner.plan_step(scenario, state, spec)
+    T = res.horizon
+    assert planner.predict_horizon(scenario, state, spec) <= T
+    assert not planner.solve_step(scenario, state, spec, T - 1).status.has_solution
+
+
+def test_select_objects_prefers_the_cheapest() -> None:
+    scenario = two_objects(
+        objects=[
+            {"name": "far", "position": [0.8, 0.1], "goal": "blue"},
+            {"name": "near", "position": [0.2, 0.4], "goal": "red"},
+            {"name": "mid", "position": [-0.1, 0.2], "goal": "blue"},
+        ],
+        m_o=1,
+        n_o=2,
+    )
+    state = State.initial(scenario)
+    assert planner.select_objects(scenario, state, [0, 1, 2]) == [1, 2]
+    assert planner.select_objects(scenario, state, [0, 2]) == [0, 2]
+
+
+# --- the oracle can fail --------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rule2_plan():
+    scenario = two_objects(rule=2, delivery="rest")
+    p = plan(scenario)
+    assert verify(scenario, p).ok
+    return scenario, p
+
+
+def _tampered(p: Plan, **arrays) -> Plan:
+    return dataclasses.replace(p, trajectory=dataclasses.replace(p.trajectory, **arrays))
+
+
+def test_verify_catches_a_flipped_grasp(rule2_plan) -> None:
+    scenario, p = rule2_plan
+    g = p.trajectory.grasp.copy()
+    k, i, j = np.argwhere(g)[1]  # a step where a hand carries an object
+    g[k, i, j] = 0
+    check = verify(scenario, _tampered(p, grasp=g))
+    assert not check.ok
+    assert any("replay" in m for m in check.problems), check.problems
+
+
+def test_verify_catches_a_changed_force(rule2_plan) -> None:
+    scenario, p = rule2_plan
+    f = p.trajectory.force.copy()
+    f[0, 0, 0] += 0.01
+    check = verify(scenario, _tampered(p, force=f))
+    assert not check.ok and any("hand_pos" in m for m in check.problems), check.problems
+
+
+def test_verify_catches_a_consistent_but_wrong_plan(rule2_plan) -> None:
+    """Re-simulate a plan whose grasps are all dropped: the replay matches, but the objects are
+    never moved, so φ_task is false and no object ends in its goal."""
+    from dualarm_mpc.mld import Model, simulate
+
+    scenario, p = rule2_plan
+    g = np.zeros_like(p.trajectory.grasp)
+    t = simulate(Model.from_scenario(scenario), State.initial(scenario), p.trajectory.force, g)
+    check = verify(scenario, dataclasses.replace(p, trajectory=t))
+    assert not check.ok
+    assert any("φ_task" in m for m in check.problems), check.problems
+    assert any("object1 does not end at rest" in m for m in check.problems), check.problems
+
+
+def test_verify_catches_a_force_above_the_bound(rule2_plan) -> None:
+    from dualarm_mpc.mld import Model, simulate
+
+    scenario, p = rule2_plan
+    f = p.trajectory.force.copy()
+    f[-1, 1, 0] += 2 * scenario.max_force
+    t = simulate(Model.from_scenario(scenario), State.initial(scenario), f, p.trajectory.grasp)
+    check = verify(scenario, dataclasses.replace(p, trajectory=t))
+    assert any("|u|" in m for m in check.problems), check.problems
+
+
+def test_verify_catches_wrong_segment_horizons(rule2_plan) -> None:
+    scenario, p = rule2_plan
+    segs = [dataclasses.replace(s, horizon=s.horizon - 1) for s in p.segments]
+    check = verify(scenario, dataclasses.replace(p, segments=segs))
+    assert not check.ok
+
+
+def test_verify_checks_the_plans_rule() -> None:
+    """A §V-C plan throws; verified against rule 1 (no-throw) it must fail on that rule."""
+    scenario = load_scenario(
+        "table1_vc",
+        {
+            "objects": [{"name": "object1", "position": [0.1, 0.1], "goal": "red"}],
+            "m_o": 1,
+            "n_o": 1,
+            "solver": {"max_horizon": 10},
+        },
+    )
+    p = plan(scenario)
+    assert verify(scenario, p).ok
+    check = verify(scenario, dataclasses.replace(p, rule=1))
+    assert not check.ok and any("no-throw" in m for m in check.problems), check.problems
+
+
+# --- no plan: the reason -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_unreachable_goals_with_rule_1_name_the_no_throw_rule(n: int) -> None:
+    objects = [
+        {"name": "object1", "position": [0.1, 0.1], "goal": "red"},
+        {"name": "object2", "position": [-0.1, 0.1], "goal": "green"},
+    ][:n]
+    scenario = load_scenario(
+        "table1_vc",
+        {
+            "rule": 1,
+            "objects": objects,
+            "m_o": 1,
+            "n_o": n,
+            "solver": {"max_horizon": 8},
+        },
+    )
+    with pytest.raises(PlanningError, match=r"no-throw") as info:
+        plan(scenario)
+    assert "object1" in str(info.value) and "horizon 8" in str(info.value)
+
+
+def test_too_slow_hands_name_the_task_alone() -> None:
+    scenario = load_scenario(
+        "table1_vc",
+        {
+            "objects": [{"name": "object1", "position": [0.1, 0.1], "goal": "red"}],
+            "m_o": 1,
+            "n_o": 1,
+            "max_speed": 0.2,
+            "max_force": 0.1,
+            "solver": {"max_horizon": 8},
+        },
+    )
+    with pytest.raises(PlanningError, match="task alone is infeasible"):
+        plan(scenario)
+
+
+def test_user_rules_conflicting_with_the_task_are_named() -> None:
+    """One object: either hand may carry it, but not if both are forbidden to."""
+    one = {
+        "objects": [{"name": "object1", "position": [0.1, 0.1], "goal": "red"}],
+        "m_o": 1,
+        "n_o": 1,
+        "solver": {"max_horizon": 8},
+    }
+    scenario = two_objects(**one)
+    assert verify(scenario, plan(two_objects(**one, rules=["G !eta[1,1]"]))).ok
+    scenario = two_objects(**one, rules=["G !eta[1,1]", "G !eta[2,1]"])
+    with pytest.raises(PlanningError, match=r"together conflict") as info:
+        plan(scenario)
+    assert "rules[0] G !eta[1,1]" in str(info.value)
+    assert "rules[1] G !eta[2,1]" in str(info.value)
+    scenario = two_objects(**one, rules=["G !eta[1,1] & G !eta[2,1]"])
+    with pytest.raises(PlanningError, match=r"conflicts with rule\(s\) rules\[0\]"):
+        plan(scenario)
+
+
+# --- §V-C in full --------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def section_vc_plan():
+    scenario = load_scenario("table1_vc", {"rule": 2})
+    return scenario, plan(scenario)
+
+
+def test_section_vc_rule_2_delivers_all_ten_objects(section_vc_plan) -> None:
+    scenario, p = section_vc_plan
+    check = verify(scenario, p)
+    assert check.ok, check.problems
+    assert_every_object_rests_in_its_goal(scenario, p)
+    t = p.trajectory
+    # every goal is beyond the hands' reach: every object was thrown, none carried in
+    assert (t.hand_pos[:, :, 1] <= 0.9 + TOL).all()
+    assert (t.object_pos[-1, :, 1] > 0.9 + 0.05).all()
+    assert sorted(j for s in p.segments for j in s.delivered) == list(range(10))
+    assert len(p.segments) <= 5  # (m_o, n_o) = (2, 6): at least two per step
+    assert all(isinstance(s, Segment) and s.status == "optimal" for s in p.segments)
+
+
+def test_section_vc_delivered_steps(section_vc_plan) -> None:
+    scenario, p = section_vc_plan
+    late = {
+        j: p.delivered_step[j]
+        for j in range(10)
+        if not in_goal(scenario, p.trajectory, j)[p.delivered_step[j]]
+    }
+    assert not late, f"objects not in their goal at their delivered_step: {late}"
