@@ -7,8 +7,9 @@ sequential step from it (Algorithm 1, one step at a time):
   η(0) is that (a decision takes effect one step after it is made, as in the model's k = 0);
 * an object is *delivered* when it rests (speed below ``REST_SPEED``) inside its goal, unheld;
   the step ends when m_o of its objects are delivered, and the next step selects new objects;
-* within a step the horizon recedes (T shrinks by one per replan; if the measured state makes that
-  infeasible, T grows again), MIP-started from the previous plan's grasps shifted by one step;
+* within a step every replan takes the shortest feasible horizon from the measured state (so the
+  plan cannot idle and the step arrives), MIP-started from the previous plan's grasps shifted by
+  one step;
 * a solver time-out, an infeasible horizon or any error keeps the previous plan; every replan's
   wall time, status and cost are recorded in the state. Nothing raises inside the simulation.
 """
@@ -35,6 +36,7 @@ from dualarm_mpc.planner import (
     solver_options,
 )
 from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.solver import Status
 from dualarm_mpc.spec import rule_formulas, specification
 from dualarm_mpc.systems.interpolator import empty_plan, sample_grasp
 from dualarm_mpc.systems.state_estimator import split_measured_state
@@ -43,7 +45,8 @@ log = logging.getLogger(__name__)
 
 REST_SPEED = 0.01  # m/s: an object slower than this counts as resting
 STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is measurement noise
-EXTRA_STEPS = 3  # how far past the receding horizon a replan may grow T before giving up
+SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the plan's own state
+SNAP_VELOCITY = 0.05  # m/s
 
 
 @dataclass(frozen=True)
@@ -173,15 +176,16 @@ class MpcPlanner(LeafSystem):
             grasp_start = s.grasp_start
         spec = specification(sc, objects, rules=self._rules)
         spec = dataclasses.replace(spec, m_o=max(1, min(spec.m_o, target - n_done)))
-        lowest = predict_horizon(sc, state, spec)
-        receding = int(round((s.horizon_end - t) / sc.dt))
-        first = lowest if new_step or receding < 1 else max(receding, lowest)
         start = _shifted_start(grasp_start, objects, s.step_objects) if grasp_start is not None \
             else None
         res = None
-        for T in range(first, min(first + EXTRA_STEPS, sc.solver.max_horizon) + 1):
+        # The shortest feasible horizon, every replan: with cost (17) alone, a longer horizon
+        # lets the plan idle first, and a receding horizon would then never arrive.
+        for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
             res = solve_step(sc, state, spec, T, self._options, start=start)
-            if res.status.has_solution:
+            if res.status is not Status.INFEASIBLE:
+                break
+            if time.perf_counter() - wall0 > self._options.time_limit_s:
                 break
         changes = dict(delivered_time=delivered_time, step_objects=tuple(objects),
                        step_target=target)
@@ -196,24 +200,36 @@ class MpcPlanner(LeafSystem):
                             grasp_start=res.trajectory.grasp, **changes)
 
     def _committed_state(self, t: float, s: MpcState, measured: np.ndarray) -> State:
-        """The measured state with the grasp the previous plan committed to for [t, t + Δt);
-        a held object moves with its hand, an unheld one this slow is at rest. Tracking errors
-        that put a hand a hair outside its bounds are clipped back (else every horizon would be
-        infeasible)."""
+        """The state a replan starts from: the measured one, with the grasp the previous plan
+        committed to for [t, t + Δt).
+
+        Where a hand or an object is within ``SNAP_POSITION`` / ``SNAP_VELOCITY`` of where the
+        previous plan put it, the plan's own (nominal) value is used: the controller absorbs
+        millimetre tracking errors, and the shifted plan stays feasible (otherwise tight plans —
+        throws at full speed from the edge of the hand range — turn infeasible by a hair at every
+        replan and the robot dithers). Larger deviations (a knock, a short throw, a failed grasp)
+        are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest."""
         sc = self._scenario
         m = split_measured_state(measured, sc.n_objects)
-        n = sc.n_objects
         ws = Box.of(sc.workspace)
-        m["hand_pos"] = np.clip(m["hand_pos"], ws.lo, ws.hi)
-        m["hand_vel"] = np.clip(m["hand_vel"], -sc.max_speed, sc.max_speed)
-        grasp = sample_grasp(s.plan, t).reshape(2, n).round().astype(int)
-        obj_vel = m["object_vel"].copy()
-        slow = np.linalg.norm(obj_vel, axis=1) < STILL_SPEED
-        obj_vel[slow] = 0.0
+        hand_pos = np.clip(m["hand_pos"], ws.lo, ws.hi)
+        hand_vel = np.clip(m["hand_vel"], -sc.max_speed, sc.max_speed)
+        obj_pos, obj_vel = m["object_pos"].copy(), m["object_vel"].copy()
+        obj_vel[np.linalg.norm(obj_vel, axis=1) < STILL_SPEED] = 0.0
+        k = int(np.floor((t - s.plan.t0) / s.plan.dt + 1e-9))
+        traj = s.plan.trajectory
+        if 0 <= k < len(traj.hand_pos) and s.step_objects:
+            for pos, vel, nominal_pos, nominal_vel in ((hand_pos, hand_vel, traj.hand_pos[k],
+                                                        traj.hand_vel[k]),
+                                                       (obj_pos, obj_vel, traj.object_pos[k],
+                                                        traj.object_vel[k])):
+                close = ((np.abs(pos - nominal_pos).max(axis=1) < SNAP_POSITION)
+                         & (np.abs(vel - nominal_vel).max(axis=1) < SNAP_VELOCITY))
+                pos[close], vel[close] = nominal_pos[close], nominal_vel[close]
+        grasp = sample_grasp(s.plan, t).reshape(2, sc.n_objects).round().astype(int)
         for i, j in zip(*np.nonzero(grasp), strict=True):
-            obj_vel[j] = m["hand_vel"][i]
-        return State(m["hand_pos"].copy(), m["hand_vel"].copy(), m["object_pos"].copy(),
-                     obj_vel, grasp)
+            obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
+        return State(hand_pos, hand_vel, obj_pos, obj_vel, grasp)
 
     @staticmethod
     def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
