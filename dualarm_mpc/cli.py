@@ -6,6 +6,7 @@ import argparse
 import logging
 import sys
 
+from dualarm_mpc.ltl import LTLSyntaxError
 from dualarm_mpc.scenario import ScenarioError, load_scenario
 
 
@@ -144,10 +145,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
+    from dualarm_mpc.encoding import EncodingError  # here: it loads pydrake
+
     try:
         return args.run(args)
-    except ScenarioError as err:
-        print(f"error: scenario: {err}", file=sys.stderr)
+    except (ScenarioError, LTLSyntaxError, EncodingError) as err:  # the message names the cause
+        print(f"error: {err}", file=sys.stderr)
         return 2
 
 

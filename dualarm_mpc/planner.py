@@ -235,6 +235,10 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
          progress: Callable[[Segment], None] | None = None) -> Plan:
     """Algorithm 1 (sequential transportation): plan m_o objects at a time until every object
     rests in its goal. Raises :class:`PlanningError` with the reason when a step has no plan."""
+    # The oracle's tolerance: an optimal plan leaves objects on a goal's edge, give or take a
+    # rounding error.
+    from dualarm_mpc.verify import POSITION_TOL
+
     state = State.initial(scenario)
     rules = rule_formulas(scenario)
     trajectory: Trajectory | None = None
@@ -256,10 +260,10 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         state = State.last(step)
         now = at_rest_in_goal(scenario, state)
         newly = [j for j in objects if now[j] and not done[j]]
-        for j in newly:
-            inside = Box.of(scenario.goals[scenario.objects[j].goal]).contains(
-                step.object_pos[:, j])
-            delivered_step[j] = offset + int(np.argmax(inside))
+        for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
+            goal = Box.of(scenario.goals[scenario.objects[j].goal])
+            inside = np.flatnonzero(goal.contains(step.object_pos[:, j], POSITION_TOL))
+            delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
         done = done | now
         seg = Segment(objects=objects, delivered=newly, horizon=res.horizon,
                       status=res.status.value, solve_time_s=total, cost=res.cost,

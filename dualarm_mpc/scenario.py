@@ -2,12 +2,14 @@
 
 A scenario file is read into the dataclasses below; every field can then be overridden by a YAML
 mapping (the CLI's ``--set``). Any bad file or value raises :class:`ScenarioError` naming the field,
-e.g. ``objects[3].position: expected 2 numbers, got 'abc'``.
+e.g. ``objects[3].position[1]: expected a number, got 'abc'``.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -16,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+
+from dualarm_mpc.ltl import LTLSyntaxError, parse
 
 BUILTIN = ("table1_vc", "table1_vd")
 
@@ -129,6 +133,8 @@ def _convert(value, hint, path: str):
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ScenarioError(f"{path}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ScenarioError(f"{path}: expected a finite number, got {value!r}")
         return float(value)
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -151,7 +157,8 @@ def _build(cls, data: dict, path: str, base=None):
     unknown = sorted(str(k) for k in set(data) - names)
     if unknown:
         where = f"{path}." if path else ""
-        raise ScenarioError(f"{where}{unknown[0]}: unknown field (known: {', '.join(sorted(names))})")
+        known = ", ".join(sorted(names))
+        raise ScenarioError(f"{where}{unknown[0]}: unknown field (known: {known})")
     obj = base if base is not None else cls()
     for key, value in data.items():
         sub = f"{path}.{key}" if path else key
@@ -166,6 +173,11 @@ def _build(cls, data: dict, path: str, base=None):
                 if not isinstance(value, dict):
                     raise ScenarioError(f"{sub}: expected a mapping, got {value!r}")
             setattr(obj, key, current)
+        elif isinstance(current, dict) and isinstance(value, dict) and value:
+            # A mapping merges into the existing one, as Drake's yaml_load_typed does with
+            # retain_map_defaults: `goals: {red: [...]}` moves red and keeps the other goals.
+            # An empty mapping clears it.
+            setattr(obj, key, {**current, **_convert(value, hints[key], sub)})
         else:
             setattr(obj, key, _convert(value, hints[key], sub))
     return obj
@@ -203,19 +215,18 @@ def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Sce
 
 
 def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:
-    """A copy of ``scenario`` with the fields in ``overrides`` replaced, objects resolved, checked."""
-    scenario = dataclasses.replace(
-        scenario,
-        solver=dataclasses.replace(scenario.solver),
-        objects=list(scenario.objects),
-        goals=dict(scenario.goals),
-    )
+    """A copy of ``scenario`` with ``overrides`` applied, objects resolved, all checked."""
+    scenario = copy.deepcopy(scenario)
     if isinstance(overrides, str):
         overrides = _yaml(overrides, "override")
     if overrides:
         _build(Scenario, overrides, "", scenario)
-    if scenario.random_objects is not None:  # the objects follow from (random_objects, seed)
-        scenario.objects = random_objects(scenario.random_objects, list(scenario.goals), scenario.seed)
+    if scenario.random_objects is not None and scenario.goals:
+        # the objects follow from (random_objects, seed); with no goals, validate says so
+        _check_random_objects(scenario.random_objects)
+        scenario.objects = random_objects(
+            scenario.random_objects, list(scenario.goals), scenario.seed
+        )
     validate(scenario)
     return scenario
 
@@ -248,6 +259,16 @@ def _point(value: list[float], path: str) -> None:
         raise ScenarioError(f"{path}: expected [x, y], got {value!r}")
 
 
+def _check_random_objects(r: RandomObjects) -> None:
+    _box(r.region, "random_objects.region")
+    if r.count < 1:
+        raise ScenarioError(f"random_objects.count: must be >= 1, got {r.count}")
+    if r.grasp_half_size <= 0:
+        raise ScenarioError(
+            f"random_objects.grasp_half_size: must be positive, got {r.grasp_half_size}"
+        )
+
+
 def validate(s: Scenario) -> None:
     """Check values that types alone cannot; each error names its field."""
     for key in ("dt", "max_speed", "max_force", "object_size"):
@@ -267,6 +288,17 @@ def validate(s: Scenario) -> None:
             raise ScenarioError(f"{name}: expected two points (arm 1 = right, arm 2 = left)")
         for i, p in enumerate(key):
             _point(p, f"{name}[{i}]")
+    workspace = s.workspace
+    for i, (x, y) in enumerate(s.hand_start):
+        if not (workspace[0] <= x <= workspace[1] and workspace[2] <= y <= workspace[3]):
+            raise ScenarioError(f"hand_start[{i}]: {[x, y]} is outside workspace {workspace}")
+    if s.hand_start[1][0] + s.hand_gap > s.hand_start[0][0] + 1e-9:
+        raise ScenarioError(
+            f"hand_start: eq. (16) needs x_arm2 + hand_gap <= x_arm1 (arm 1 = right), got "
+            f"x_arm1 = {s.hand_start[0][0]}, x_arm2 = {s.hand_start[1][0]}, hand_gap = {s.hand_gap}"
+        )
+    if s.random_objects is not None:
+        _check_random_objects(s.random_objects)
     if not s.goals:
         raise ScenarioError("goals: at least one goal region is needed")
     for name, box in s.goals.items():
@@ -299,6 +331,16 @@ def validate(s: Scenario) -> None:
         raise ScenarioError(f"solver.backend: unknown backend {s.solver.backend!r}")
     if s.solver.time_limit_s <= 0:
         raise ScenarioError("solver.time_limit_s: must be positive")
+    if s.solver.mip_rel_gap < 0:
+        raise ScenarioError(f"solver.mip_rel_gap: must be >= 0, got {s.solver.mip_rel_gap}")
+    for key in ("max_horizon", "threads"):
+        if getattr(s.solver, key) < 1:
+            raise ScenarioError(f"solver.{key}: must be >= 1, got {getattr(s.solver, key)}")
+    for n, text in enumerate(s.rules):
+        try:
+            parse(text)
+        except LTLSyntaxError as err:
+            raise ScenarioError(f"rules[{n}]: {err}") from err
     for e, ev in enumerate(s.events):
         if ev.kind == "move_object":
             if ev.target not in names:

@@ -1,4 +1,4 @@
-"""The one solver boundary: a MathematicalProgram MILP solved by HiGHS (or Drake's licensed solvers).
+"""The one solver boundary: a MathematicalProgram MILP solved by HiGHS (or Drake's licensed ones).
 
 Drake's pip wheel has no MILP solver, so :func:`solve` reads the program's linear costs, linear
 constraints, bounding boxes and binary variables in bulk as sparse matrices and hands them to
@@ -25,6 +25,7 @@ class Status(enum.Enum):
     OPTIMAL = "optimal"
     FEASIBLE = "feasible"  # a solution with a gap above the asked one (stopped early)
     INFEASIBLE = "infeasible"
+    UNBOUNDED = "unbounded"  # or HiGHS could not tell unbounded from infeasible
     TIME_LIMIT = "time_limit"  # stopped with no solution
     ERROR = "error"
 
@@ -162,23 +163,30 @@ def solve_standard_form(f: StandardForm, options: SolveOptions,
     info = h.getInfo()
     M = highspy.HighsModelStatus
     has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+    mip = bool(f.integer.any())
     if status == M.kOptimal:
         s = Status.OPTIMAL
-    elif status in (M.kInfeasible,):
+    elif status == M.kInfeasible:
         s = Status.INFEASIBLE
-    elif has_solution:
-        s = Status.FEASIBLE
+    elif status in (M.kUnbounded, M.kUnboundedOrInfeasible):
+        s = Status.UNBOUNDED  # HiGHS may hold a feasible point here: it is no solution
     elif status in (M.kTimeLimit, M.kIterationLimit, M.kSolutionLimit, M.kInterrupt):
-        s = Status.TIME_LIMIT
+        s = Status.FEASIBLE if has_solution else Status.TIME_LIMIT
     else:
         s = Status.ERROR
     if s.has_solution:
         x = np.asarray(h.getSolution().col_value)
         obj = float(info.objective_function_value)
-        bound = float(info.mip_dual_bound)
-        gap = 0.0 if s is Status.OPTIMAL else float(info.mip_gap)
     else:
-        x, obj, bound, gap = None, np.inf, float(info.mip_dual_bound), np.inf
+        x, obj = None, np.inf
+    # HiGHS's mip_dual_bound is meaningless for a pure LP: only its optimum is a proven bound.
+    if s is Status.UNBOUNDED:
+        bound = -np.inf
+    elif mip:
+        bound = float(info.mip_dual_bound)
+    else:
+        bound = {Status.OPTIMAL: obj, Status.INFEASIBLE: np.inf}.get(s, -np.inf)
+    gap = 0.0 if s is Status.OPTIMAL else float(info.mip_gap) if s.has_solution and mip else np.inf
     return SolveResult(s, obj, bound, gap, wall, x, h.modelStatusToString(status))
 
 

@@ -65,20 +65,19 @@ def test_plan_exits_zero_and_writes_both_files(planned, capsys) -> None:
     assert png.stat().st_size > 10_000
 
 
-def test_plan_json_has_exactly_the_issues_fields(planned) -> None:
+def test_plan_json_has_the_issues_fields(planned) -> None:
+    """The issue's fields, each with its shape, are all there; "more are welcome"."""
     data = json.loads(planned[2].read_text())
-    found = {"plan": set(data), "trajectory": set(data["trajectory"])}
-    found |= {f"objects[{n}]": set(o) for n, o in enumerate(data["objects"])}
-    found |= {f"segments[{n}]": set(s) for n, s in enumerate(data["segments"])}
-    expected = {"plan": TOP, "trajectory": TRAJECTORY}
-    expected |= {k: OBJECT for k in found if k.startswith("objects")}
-    expected |= {k: SEGMENT for k in found if k.startswith("segments")}
-    diff = {
-        k: {"missing": sorted(expected[k] - v), "extra": sorted(v - expected[k])}
-        for k, v in found.items()
-        if v != expected[k]
-    }
-    assert not diff, diff
+    assert TOP <= set(data), sorted(TOP - set(data))
+    assert TRAJECTORY <= set(data["trajectory"]), sorted(TRAJECTORY - set(data["trajectory"]))
+    assert isinstance(data["goals"], dict) and len(data["workspace"]) == 4
+    assert isinstance(data["objects"], list) and isinstance(data["segments"], list)
+    assert len(data["delivered_step"]) == len(data["objects"]) == 3
+    for o in data["objects"]:
+        assert OBJECT <= set(o), sorted(OBJECT - set(o))
+    for s in data["segments"]:
+        assert SEGMENT <= set(s), sorted(SEGMENT - set(s))
+        assert isinstance(s["objects"], list) and isinstance(s["delivered"], list)
 
 
 def test_plan_json_values(planned) -> None:
