@@ -14,6 +14,8 @@ $(BIN)/dualarm-mpc: pyproject.toml
 demo: $(BIN)/dualarm-mpc
 	mkdir -p $(OUT)
 	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --out $(OUT)/plan.json --plot $(OUT)/plan.png
+	$(BIN)/dualarm-mpc simulate table1_vc --rule 2 --html $(OUT)/replay.html \
+		--summary $(OUT)/summary.json
 
 test: $(BIN)/dualarm-mpc
 	$(BIN)/python -m pytest -q

@@ -204,8 +204,9 @@ def reachability(model: Model, state: State, horizon: int) -> Reach:
     region = model.object_region(p0)
     obj_lo = np.where(k[..., None] == 0, p0[None], p1[None] - moves[..., None])
     obj_hi = np.where(k[..., None] == 0, p0[None], p1[None] + moves[..., None])
-    obj_lo = np.maximum(obj_lo, np.minimum(region.lo, p0))
-    obj_hi = np.minimum(obj_hi, np.maximum(region.hi, p0))
+    # A sliding object (measured velocity) may be carried past the region in step 0.
+    obj_lo = np.maximum(obj_lo, np.minimum(region.lo, np.minimum(p0, p1)))
+    obj_hi = np.minimum(obj_hi, np.maximum(region.hi, np.maximum(p0, p1)))
     # With the object's motion bounded, a second pass catches grabs of an object moved by the other
     # hand (rule 2 allows put-down and pick-up by the other arm).
     for i in range(N_HANDS):

@@ -159,8 +159,10 @@ class MpcPlanner(LeafSystem):
         resting = self._resting(sc, state, exhausted=t >= s.horizon_end - 1e-9)
         delivered_time = tuple((t if d is None else d) if r else None
                                for d, r in zip(s.delivered_time, resting, strict=True))
-        n_done = int(np.sum(resting))
-        remaining = [j for j in range(sc.n_objects) if not resting[j]]
+        # A thrown object still sliding into its goal needs nothing more from the robot.
+        done = resting | self._arriving(sc, state)
+        n_done = int(np.sum(done))
+        remaining = [j for j in range(sc.n_objects) if not done[j]]
         if not remaining:
             return self._record(s, t, wall0, "done", plan=_hold(t, sc.dt, state),
                                 step_objects=(), delivered_time=delivered_time)
@@ -230,6 +232,16 @@ class MpcPlanner(LeafSystem):
         for i, j in zip(*np.nonzero(grasp), strict=True):
             obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
         return State(hand_pos, hand_vel, obj_pos, obj_vel, grasp)
+
+    @staticmethod
+    def _arriving(sc: Scenario, state: State) -> np.ndarray:
+        """Unheld objects whose one-step slide (the model's, and the table's v·τ) ends inside
+        their goals."""
+        landing = state.object_pos + sc.dt * state.object_vel
+        inside = np.array([Box.of(sc.goals[o.goal]).contains(landing[j])
+                           for j, o in enumerate(sc.objects)])
+        moving = np.linalg.norm(state.object_vel, axis=1) > 0
+        return inside & moving & ~state.grasp.any(axis=0)
 
     @staticmethod
     def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
