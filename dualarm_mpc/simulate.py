@@ -100,7 +100,7 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
                 progress(r)
         seen = len(replans)
         pending = [e for e in events if e.time > t]
-        if replans and replans[-1].status == "done" and not pending:
+        if replans and replans[-1].status in ("done", "stuck") and not pending:
             finished_at = finished_at if finished_at is not None else t
             if t - finished_at >= SETTLE_S:
                 break

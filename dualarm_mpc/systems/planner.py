@@ -25,7 +25,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.mld import Box, State
+from dualarm_mpc.mld import Box, Model, State, reachability
 from dualarm_mpc.plan import TimedTrajectory, Trajectory
 from dualarm_mpc.planner import (
     StepResult,
@@ -162,7 +162,13 @@ class MpcPlanner(LeafSystem):
         # A thrown object still sliding into its goal needs nothing more from the robot.
         done = resting | self._arriving(sc, state)
         n_done = int(np.sum(done))
-        remaining = [j for j in range(sc.n_objects) if not done[j]]
+        lost = self._lost(sc, state) & ~done
+        remaining = [j for j in range(sc.n_objects) if not done[j] and not lost[j]]
+        if not remaining and lost.any():
+            names = ", ".join(sc.objects[j].name for j in np.flatnonzero(lost))
+            return self._record(s, t, wall0, "stuck", plan=_hold(t, sc.dt, state),
+                                step_objects=(), delivered_time=delivered_time,
+                                note=f"{names} can no longer reach the goal")
         if not remaining:
             return self._record(s, t, wall0, "done", plan=_hold(t, sc.dt, state),
                                 step_objects=(), delivered_time=delivered_time)
@@ -232,6 +238,14 @@ class MpcPlanner(LeafSystem):
         for i, j in zip(*np.nonzero(grasp), strict=True):
             obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
         return State(hand_pos, hand_vel, obj_pos, obj_vel, grasp)
+
+    @staticmethod
+    def _lost(sc: Scenario, state: State) -> np.ndarray:
+        """Objects that reachability proves can never reach their goals (e.g. knocked or thrown
+        short beyond the hands' reach): left out so that the others still get delivered."""
+        model = Model.from_scenario(sc)
+        reach = reachability(model, state, sc.solver.max_horizon)
+        return reach.first_goal > sc.solver.max_horizon
 
     @staticmethod
     def _arriving(sc: Scenario, state: State) -> np.ndarray:
