@@ -97,10 +97,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from dualarm_mpc.simulate import simulate
+    from dualarm_mpc.simulate import ON_ROBOT, simulate
 
-    # On the robot "delivered" means at rest in the goal, aimed a little inside it.
-    overrides = {"delivery": "rest", "goal_margin": 0.03, **_overrides(args)}
+    overrides = {**ON_ROBOT, **_overrides(args)}
     scenario = load_scenario(args.scenario, overrides)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.rule}, "
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")

@@ -117,8 +117,7 @@ class Model:
             u_max=scenario.max_force,
             hand_gap=scenario.hand_gap,
             workspace=Box.of(scenario.workspace),
-            goals=tuple(Box.of(scenario.goals[scenario.objects[j].goal]).shrink(scenario.goal_margin)
-                        for j in objects),
+            goals=tuple(target_box(scenario, j) for j in objects),
             grasp_half=np.array([scenario.objects[j].grasp_half_size for j in objects], float),
         )
 
@@ -129,6 +128,20 @@ class Model:
         lo = np.minimum(self.workspace.lo - reach, np.min(start, axis=0, initial=np.inf))
         hi = np.maximum(self.workspace.hi + reach, np.max(start, axis=0, initial=-np.inf))
         return Box(lo, hi)
+
+
+def target_box(scenario: Scenario, j: int) -> Box:
+    """Where the planner aims object j: its goal box less ``goal_margin``; with ``goal_slots``,
+    only the j-th of side-by-side columns of the goal, one per object of that goal, so that
+    objects thrown later do not run into those already delivered."""
+    goal = scenario.objects[j].goal
+    box = Box.of(scenario.goals[goal])
+    if scenario.goal_slots:
+        sharing = [n for n, o in enumerate(scenario.objects) if o.goal == goal]
+        width = (box.hi[0] - box.lo[0]) / len(sharing)
+        x0 = box.lo[0] + width * sharing.index(j)
+        box = Box(np.array([x0, box.lo[1]]), np.array([x0 + width, box.hi[1]]))
+    return box.shrink(scenario.goal_margin)
 
 
 # --- reachability (pruning, §IV-C.2) ------------------------------------------------------------

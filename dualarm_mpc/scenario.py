@@ -100,6 +100,7 @@ class Scenario:
     # one-step slide when τ = Δt (see systems/gripper.py). None: Coulomb friction only.
     slide_time_constant: float | None = 1.0
     goal_margin: float = 0.0  # the planner aims this far inside each goal box (closed loop)
+    goal_slots: bool = False  # aim each object at its own column of its goal (closed loop)
     object_size: float = 0.05
 
     @property

@@ -227,13 +227,13 @@ class MpcPlanner(LeafSystem):
         k = int(np.floor((t - s.plan.t0) / s.plan.dt + 1e-9))
         traj = s.plan.trajectory
         if 0 <= k < len(traj.hand_pos) and s.step_objects:
-            for pos, vel, nominal_pos, nominal_vel in ((hand_pos, hand_vel, traj.hand_pos[k],
-                                                        traj.hand_vel[k]),
-                                                       (obj_pos, obj_vel, traj.object_pos[k],
-                                                        traj.object_vel[k])):
-                close = ((np.abs(pos - nominal_pos).max(axis=1) < SNAP_POSITION)
-                         & (np.abs(vel - nominal_vel).max(axis=1) < SNAP_VELOCITY))
-                pos[close], vel[close] = nominal_pos[close], nominal_vel[close]
+            # Hands on position alone: at a release the interpolator deliberately keeps the
+            # hand at the previous step's speed (the throw), so its velocity differs by design.
+            close = np.abs(hand_pos - traj.hand_pos[k]).max(axis=1) < SNAP_POSITION
+            hand_pos[close], hand_vel[close] = traj.hand_pos[k][close], traj.hand_vel[k][close]
+            close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < SNAP_POSITION)
+                     & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < SNAP_VELOCITY))
+            obj_pos[close], obj_vel[close] = traj.object_pos[k][close], traj.object_vel[k][close]
         grasp = sample_grasp(s.plan, t).reshape(2, sc.n_objects).round().astype(int)
         for i, j in zip(*np.nonzero(grasp), strict=True):
             obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
