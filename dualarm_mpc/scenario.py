@@ -320,6 +320,12 @@ def validate(s: Scenario) -> None:
         if not o.name or o.name in names:
             raise ScenarioError(f"objects[{j}].name: missing or repeated name {o.name!r}")
         names.add(o.name)
+    if s.goal_slots:
+        for name, box in s.goals.items():
+            count = sum(o.goal == name for o in s.objects)
+            if count and (box[1] - box[0]) / count <= 2 * s.goal_margin:
+                raise ScenarioError(f"goal_slots: goals.{name} is too narrow for {count} slots "
+                                    f"with goal_margin {s.goal_margin}")
     if s.rule not in (1, 2):
         raise ScenarioError(f"rule: must be 1 (no-throw) or 2 (no-juggle, no-swap), got {s.rule!r}")
     if s.delivery not in ("reach", "rest"):
