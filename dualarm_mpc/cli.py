@@ -97,10 +97,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from dualarm_mpc.simulate import ON_ROBOT, simulate
+    from dualarm_mpc.scenario import apply_overrides
+    from dualarm_mpc.simulate import on_robot, simulate
 
-    overrides = {**ON_ROBOT, **_overrides(args)}
-    scenario = load_scenario(args.scenario, overrides)
+    base = load_scenario(args.scenario)
+    overrides = on_robot(base)
+    _merge(overrides, _overrides(args))
+    scenario = apply_overrides(base, overrides)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.rule}, "
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")
     print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")

@@ -45,6 +45,10 @@ class RandomObjects:
     count: int = 10
     region: list[float] = field(default_factory=lambda: [-0.25, 0.25, -0.25, 0.25])
     grasp_half_size: float = 0.05
+    # Objects closer than this (per axis) are drawn again. 0 is the paper's plain uniform draw
+    # (points, for planning); physical boxes need at least their size, or they start
+    # interpenetrating and the simulation flings them apart.
+    min_separation: float = 0.0
 
 
 @dataclass
@@ -236,7 +240,19 @@ def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> lis
     """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin (design §5)."""
     rng = np.random.default_rng(seed)
     xmin, xmax, ymin, ymax = spec.region
-    xy = rng.uniform([xmin, ymin], [xmax, ymax], size=(spec.count, 2))
+    if spec.min_separation <= 0:
+        xy = rng.uniform([xmin, ymin], [xmax, ymax], size=(spec.count, 2))
+    else:
+        xy = np.empty((0, 2))
+        for _ in range(1000 * spec.count):
+            p = rng.uniform([xmin, ymin], [xmax, ymax])
+            if len(xy) == 0 or np.abs(xy - p).max(axis=1).min() >= spec.min_separation:
+                xy = np.vstack([xy, p])
+                if len(xy) == spec.count:
+                    break
+        else:
+            raise ScenarioError(f"random_objects: cannot place {spec.count} objects "
+                                f"{spec.min_separation} m apart in {spec.region}")
     return [
         ObjectSpec(
             name=f"object{j + 1}",

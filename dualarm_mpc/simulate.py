@@ -27,6 +27,15 @@ from dualarm_mpc.systems.planner import Replan
 # object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
 # slots one object in ten was knocked short of its goal, beyond reach).
 ON_ROBOT = {"delivery": "rest", "goal_margin": 0.03, "goal_slots": True}
+
+
+def on_robot(scenario: Scenario) -> dict:
+    """The overrides that make ``scenario`` fit for the robot: ``ON_ROBOT``, and random objects
+    drawn at least a box apart (plus 2 cm), since physical boxes cannot overlap."""
+    extra = {}
+    if scenario.random_objects is not None:
+        extra["random_objects"] = {"min_separation": scenario.object_size + 0.02}
+    return {**ON_ROBOT, **extra}
 SETTLE_S = 5.0  # simulated seconds after the last replan, for sliding objects to come to rest
 
 
