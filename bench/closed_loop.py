@@ -1,0 +1,357 @@
+"""Closed loop on §V-D: per-replan wall time and the simulation's real-time factor.
+
+What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
+[-0.25, 0.25]² from the seed, reachable goals) with (m_o, n_o) = (2, 6), delivery ``rest`` and a
+goal margin of 0.03 m is run closed loop by :func:`dualarm_mpc.simulate.simulate`: the MPC planner
+replans every Δt = 1 s from the measured state while Drake simulates the dual SCARA robot.
+
+* **objects delivered** — counted on the plant at the end of the run: objects whose final (x, y)
+  is inside their goal box and whose speed is below 0.01 m/s (not the planner's own count);
+* **wall per replan** — the wall time of each replan that had work to do (model build, every
+  horizon tried, extraction), as median, 95th percentile (linear interpolation) and maximum.
+  Replans with status ``done`` or ``stuck``, which only hold the hands once nothing is left to
+  do, are left out; replans that raised (status ``error``, often before any solve) are kept, so
+  read the medians next to the status counts of the detail table. The simulation blocks while the
+  planner runs, so on a robot each replan must finish within Δt;
+* **real-time factor** — simulated time / wall time of the whole run (solves included); above 1
+  is faster than real time.
+
+Run it (from the repository root)::
+
+    .venv/bin/python bench/closed_loop.py                       # rules 1 and 2, seeds 0-2
+    .venv/bin/python bench/closed_loop.py --rules 2 --seeds 0,4 --time-limit 5
+    .venv/bin/python bench/closed_loop.py --set 'goal_slots: true' --json bench/results/slots.json
+
+``--set`` adds scenario overrides after the fixed ones (rule, seed, (m_o, n_o) = (2, 6), delivery
+rest, goal margin 0.03 m); the JSON records them with the other options.
+
+One line per replan and per finished run goes to stderr; the Markdown tables go to stdout and next
+to the JSON (``--json``, default bench/results/closed_loop.json, rewritten after every run), which
+holds every run's record (with every replan), a summary per rule, the machine and the options.
+Runs go one after another in this process, so the timings are those of one otherwise idle core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+import traceback
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import dualarm_mpc
+from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.simulate import simulate
+
+SCENARIO = "table1_vd"
+M_O, N_O = 2, 6
+REST_SPEED = 0.01  # m/s: slower than this, an object is at rest (as in simulate's summary)
+SOLUTION = ("optimal", "feasible")
+NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object done, or none can be
+
+
+# --- command line ------------------------------------------------------------------------------
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``0-2`` (a range), ``0,3,7`` (a list) or ``3`` (a count: seeds 0..2), as bench/table2.py."""
+    try:
+        if "-" in text:
+            lo, hi = (int(v) for v in text.split("-"))
+            seeds = list(range(lo, hi + 1))
+        elif "," in text:
+            seeds = [int(v) for v in text.split(",")]
+        else:
+            seeds = list(range(int(text)))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected 0-2, 0,3,7 or a count, got {text!r}") from err
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (a single number is a count; "
+                                         "seed 0 alone is 0-0)")
+    return seeds
+
+
+def parse_set(text: str) -> dict:
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise argparse.ArgumentTypeError(f"not valid YAML: {text!r}") from err
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected 'field: value', got {text!r}")
+    return value
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--seeds", type=parse_seeds, default=[0, 1, 2],
+                   help="0-2, 0,3,7 or a count (default 0-2)")
+    p.add_argument("--rules", nargs="+", type=int, choices=(1, 2), default=[1, 2])
+    p.add_argument("--time-limit", type=float, default=None,
+                   help="seconds per MILP solve (default: the scenario's, 30 s)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="simulated seconds at most per run (default: simulate's, by object count)")
+    p.add_argument("--set", action="append", type=parse_set, default=[], metavar="YAML",
+                   help="extra scenario overrides, applied last, e.g. --set 'goal_slots: true' "
+                        "(repeatable)")
+    p.add_argument("--json", type=Path, default=Path("bench/results/closed_loop.json"))
+    p.add_argument("--quiet", action="store_true", help="no per-replan lines on stderr")
+    return p.parse_args(argv)
+
+
+# --- one run -----------------------------------------------------------------------------------
+
+
+def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict]) -> dict:
+    out = {"rule": rule, "seed": seed, "m_o": M_O, "n_o": N_O, "delivery": "rest",
+           "goal_margin": 0.03}
+    if time_limit is not None:
+        out["solver"] = {"time_limit_s": time_limit}
+    for more in extra:
+        merge(out, more)
+    return out
+
+
+def merge(into: dict, extra: dict) -> None:
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            merge(into[key], value)
+        else:
+            into[key] = value
+
+
+def resting_in_goal(summary) -> list[bool]:
+    """Per object: its final (x, y) inside its goal box (the true box, as the summary's goals
+    give it) and its speed below REST_SPEED — judged on the plant, not by the planner."""
+    out = []
+    for j, obj in enumerate(summary.objects):
+        x0, x1, y0, y1 = summary.goals[obj["goal"]]
+        x, y = summary.final_object_pos[j][:2]
+        out.append(bool(x0 <= x <= x1 and y0 <= y <= y1
+                        and summary.final_object_speed[j] < REST_SPEED))
+    return out
+
+
+def percentiles(values: list[float]) -> dict:
+    if not values:
+        return {"median": None, "p95": None, "max": None, "mean": None}
+    a = np.asarray(values, float)
+    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)),
+            "max": float(a.max()), "mean": float(a.mean())}
+
+
+def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
+    """Simulate one (rule, seed); always returns a record, never raises."""
+    record = {"rule": rule, "seed": seed, "m_o": M_O, "n_o": N_O, "status": "error",
+              "message": ""}
+    tag = f"rule {rule} seed {seed}"
+
+    def progress(r) -> None:
+        if not args.quiet:
+            horizon = "-" if r.horizon is None else r.horizon
+            print(f"  {tag}: t {r.t:6.1f}  delivered {r.delivered:>2}  {r.status:<10} "
+                  f"T {horizon:>2}  {r.wall_s:7.3f} s" + (f"  ({r.note})" if r.note else ""),
+                  file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
+    try:
+        scenario = load_scenario(SCENARIO, overrides(rule, seed, args.time_limit, args.set))
+        record["time_limit_s"] = scenario.solver.time_limit_s
+        record["n_objects"] = scenario.n_objects
+        record["objects"] = [{"name": o.name, "position": o.position, "goal": o.goal}
+                             for o in scenario.objects]
+        summary = simulate(scenario, args.duration, progress=progress)
+    except Exception:  # a bug in one run must not end the bench: record it and go on
+        record["message"] = traceback.format_exc(limit=4)
+        record["wall_time_s"] = time.perf_counter() - t0
+        return record
+    resting = resting_in_goal(summary)
+    solves = [r for r in summary.replans if r["status"] not in NO_SOLVE]
+    record.update(
+        status="ok",
+        delivered=sum(resting),
+        resting_in_goal=resting,
+        planner_delivered=sum(d is not None for d in summary.delivered_time_s),
+        all_delivered=summary.all_delivered,
+        sim_time_s=summary.sim_time_s,
+        wall_time_s=summary.wall_time_s,
+        realtime_factor=summary.realtime_factor,
+        replans=len(summary.replans),
+        solving_replans=len(solves),
+        replan_wall_s=percentiles([r["wall_s"] for r in solves]),
+        statuses=dict(Counter(r["status"] for r in summary.replans)),
+        replans_without_plan=sum(r["status"] not in SOLUTION for r in solves),
+        replans_over_dt=sum(r["wall_s"] > scenario.dt for r in solves),
+        final_object_pos=summary.final_object_pos,
+        final_object_speed=summary.final_object_speed,
+        delivered_time_s=summary.delivered_time_s,
+        replan_log=[{k: r[k] for k in ("t", "wall_s", "status", "horizon", "delivered", "note")}
+                    for r in summary.replans],
+        load_avg_1min=os.getloadavg()[0],  # other work on the machine skews the times
+    )
+    return record
+
+
+def run_line(k: int, n: int, r: dict) -> str:
+    head = f"[{k}/{n}] rule {r['rule']} seed {r['seed']}"
+    if r["status"] != "ok":
+        return f"{head}: ERROR after {r['wall_time_s']:.0f} s: " \
+               f"{r['message'].strip().splitlines()[-1]}"
+    w = r["replan_wall_s"]
+    return (f"{head}: {r['delivered']}/{r['n_objects']} resting in goal, "
+            f"sim {r['sim_time_s']:.0f} s, {r['replans']} replans, wall/replan median "
+            f"{fmt(w['median'], '.3f')} max {fmt(w['max'], '.2f')} s, "
+            f"real-time factor {r['realtime_factor']:.2f}")
+
+
+# --- summary -----------------------------------------------------------------------------------
+
+
+def summarize(records: list[dict], rule: int) -> dict:
+    """One row per rule: replan wall times pooled over its runs; real-time factor as total
+    simulated time / total wall time."""
+    runs = [r for r in records if r["rule"] == rule]
+    ok = [r for r in runs if r["status"] == "ok"]
+    walls = [x["wall_s"] for r in ok for x in r["replan_log"] if x["status"] not in NO_SOLVE]
+    sim = sum(r["sim_time_s"] for r in ok)
+    wall = sum(r["wall_time_s"] for r in ok)
+    return {
+        "rule": rule, "runs": len(runs), "ok": len(ok),
+        "delivered": sum(r["delivered"] for r in ok),
+        "objects": sum(r["n_objects"] for r in ok),
+        "runs_all_delivered": sum(r["delivered"] == r["n_objects"] for r in ok),
+        "mean_sim_time_s": sum(r["sim_time_s"] for r in ok) / len(ok) if ok else None,
+        "replans": sum(r["replans"] for r in ok),
+        "solving_replans": len(walls),
+        "replan_wall_s": percentiles(walls),
+        "replans_without_plan": sum(r["replans_without_plan"] for r in ok),
+        "replans_over_dt": sum(r["replans_over_dt"] for r in ok),
+        "realtime_factor": sim / wall if wall > 0 else None,
+    }
+
+
+def fmt(value, spec: str = ".2f") -> str:
+    return "—" if value is None else format(value, spec)
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def walls(w: dict) -> str:
+    return f"{fmt(w['median'], '.3f')} / {fmt(w['p95'], '.3f')} / {fmt(w['max'], '.2f')}"
+
+
+def main_table(records: list[dict], summary: list[dict]) -> str:
+    header = ["rule", "seed", "objects delivered (resting in goal) / 10", "sim time (s)",
+              "replans", "wall per replan median / p95 / max (s)", "real-time factor"]
+    rows = []
+    for s in summary:
+        for r in (r for r in records if r["rule"] == s["rule"]):
+            if r["status"] != "ok":
+                rows.append([str(r["rule"]), str(r["seed"]), "error", "—", "—", "—", "—"])
+                continue
+            rows.append([str(r["rule"]), str(r["seed"]), f"{r['delivered']}/{r['n_objects']}",
+                         f"{r['sim_time_s']:.0f}", str(r["replans"]), walls(r["replan_wall_s"]),
+                         f"{r['realtime_factor']:.2f}"])
+        rows.append([f"**{s['rule']}**", f"**all ({s['ok']}/{s['runs']} runs)**",
+                     f"**{s['delivered']}/{s['objects']}**", fmt(s["mean_sim_time_s"], ".0f"),
+                     str(s["replans"]), walls(s["replan_wall_s"]), fmt(s["realtime_factor"])])
+    return table(header, rows)
+
+
+def detail_table(records: list[dict]) -> str:
+    header = ["rule", "seed", "planner counted delivered", "replans with work",
+              "replans without a plan", "replans over Δt", "statuses"]
+    rows = []
+    for r in records:
+        if r["status"] != "ok":
+            rows.append([str(r["rule"]), str(r["seed"]), "—", "—", "—", "—",
+                         r["message"].strip().splitlines()[-1]])
+            continue
+        statuses = ", ".join(f"{k} {v}" for k, v in sorted(r["statuses"].items()))
+        rows.append([str(r["rule"]), str(r["seed"]), f"{r['planner_delivered']}/{r['n_objects']}",
+                     str(r["solving_replans"]), str(r["replans_without_plan"]),
+                     str(r["replans_over_dt"]), statuses])
+    return table(header, rows)
+
+
+def report(records: list[dict], args: argparse.Namespace) -> str:
+    summary = [summarize(records, rule) for rule in args.rules]
+    limits = sorted({r["time_limit_s"] for r in records if "time_limit_s" in r})
+    extra = "".join(f", {json.dumps(e)}" for e in args.set)
+    head = (f"Closed loop, {SCENARIO}, (m_o, n_o) = ({M_O}, {N_O}), delivery rest, goal margin "
+            f"0.03 m{extra}, time limit {', '.join(f'{v:g}' for v in limits) or '—'} s per solve, "
+            f"Δt = 1 s. Wall per replan over replans with work (not done/stuck); per-rule rows "
+            f"pool all replans of the rule, real-time factor = total sim time / total wall time.")
+    return "\n".join([head, "", main_table(records, summary), "", "Detail:", "",
+                      detail_table(records), ""])
+
+
+# --- output ------------------------------------------------------------------------------------
+
+
+def git(package: Path, *args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True)
+    except OSError:
+        return None
+    return out.stdout.strip() if out.returncode == 0 else None
+
+
+def machine() -> dict:
+    """The machine and the code measured (commit and uncommitted changes of the package)."""
+    package = Path(dualarm_mpc.__file__).parent
+    return {
+        "platform": platform.platform(), "processor": platform.processor(),
+        "cpu_count": os.cpu_count(), "python": sys.version.split()[0],
+        "highspy": importlib.metadata.version("highspy"),
+        "drake": importlib.metadata.version("drake"),
+        "dualarm_mpc": str(package), "git_commit": git(package, "rev-parse", "HEAD"),
+        "git_changes": git(package, "status", "--porcelain", "--", "."),
+    }
+
+
+def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
+               complete: bool) -> None:
+    """Written after every run (``complete`` false until the last), atomically."""
+    options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    data = {"scenario": SCENARIO, "m_o": M_O, "n_o": N_O, "options": options, "machine": info,
+            "complete": complete, "summary": [summarize(records, rule) for rule in args.rules],
+            "runs": records}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    tmp.replace(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    tasks = [(rule, seed) for rule in args.rules for seed in args.seeds]
+    info = machine()
+    records: list[dict] = []
+    t0 = time.perf_counter()
+    for k, (rule, seed) in enumerate(tasks, 1):
+        print(f"[{k}/{len(tasks)}] rule {rule} seed {seed}: running", file=sys.stderr, flush=True)
+        record = run_one(rule, seed, args)
+        records.append(record)
+        print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
+        write_json(args.json, args, records, info, complete=k == len(tasks))
+    text = report(records, args) + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
+    print(text)
+    args.json.with_suffix(".md").write_text(text)
+    print(f"wrote {args.json} and {args.json.with_suffix('.md')}", file=sys.stderr)
+    return 1 if any(r["status"] != "ok" for r in records) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,411 @@
+"""Closed-loop tests of :func:`dualarm_mpc.simulate.simulate`: the MPC planner drives the simulated
+dual SCARA robot in Drake, and every object must end *physically* at rest inside its goal.
+
+Everything here is judged on the plant, through the run's :class:`~dualarm_mpc.simulate.Summary`
+(where each object ended, how fast it still moves, when it came to rest in its goal), never on the
+planner's own plan. Scenes are small (1–3 objects) so the whole file runs in about two minutes:
+
+* a small §V-D-like scene with reachable goals, rule 1 and rule 2 — every object rests in its goal,
+  every replan is recorded with a status and a wall time;
+* a throw (rule 2, §V-C-like bounds, goal beyond the hands' reach): the object rests in its goal
+  while the hands never left their range, traced every simulation step;
+* environment events: an object knocked while waiting its turn, one knocked out of its goal just
+  after delivery, a goal moved before its object is delivered;
+* the Meshcat replay HTML is written and self-contained;
+* robustness: solver time-outs and failures (real ones, with a 1 ms time limit, and injected
+  exceptions) are recorded and never stop the simulation;
+* the ``dualarm-mpc simulate`` CLI writes the summary JSON with the documented fields.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import EventStatus
+
+import dualarm_mpc.simulate as simulate_module
+import dualarm_mpc.systems.planner as planner_module
+from dualarm_mpc.cli import main
+from dualarm_mpc.recording import is_self_contained
+from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario
+from dualarm_mpc.simulate import Summary, simulate
+from dualarm_mpc.systems.state_estimator import split_measured_state
+
+REST_SPEED = 0.01  # m/s: "at rest", as the summary and the planner count it
+# Statuses a replan may record: the solver's (dualarm_mpc.solver.Status), "done" once every
+# object rests in (or slides into) its goal, "stuck" when the objects left can provably no longer
+# reach their goals, "no_horizon" when no horizon was tried.
+KNOWN_STATUSES = {"optimal", "feasible", "infeasible", "unbounded", "time_limit", "error", "done",
+                  "stuck", "no_horizon"}
+SOLUTION_STATUSES = {"optimal", "feasible"}
+
+# §V-D bounds and goals (Table I; design §5), hand range extended down to y = -0.3 (README).
+VD = {
+    "workspace": [-0.9, 0.9, -0.3, 0.9],
+    "max_speed": 0.2,
+    "max_force": 0.1,
+    "goals": {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]},
+}
+# §V-C bounds: |v|, |u| <= 0.5, the hands stop at y = 0.9; the goal lies beyond reach.
+VC_HAND_RANGE_Y = 0.9
+VC = {
+    "workspace": [-0.9, 0.9, 0.0, VC_HAND_RANGE_Y],
+    "max_speed": 0.5,
+    "max_force": 0.5,
+    "goals": {"green": [-0.175, 0.175, 1.2, 1.5]},
+}
+CLOSED_LOOP = {"delivery": "rest", "goal_margin": 0.03, "solver": {"time_limit_s": 10}}
+
+
+def scene(name: str, objects: list[ObjectSpec], *, rule: int = 1, m_o: int = 1, n_o: int = 1,
+          bounds: dict = VD, events: list[Event] | None = None, **overrides) -> Scenario:
+    """A small scene built in code and validated by ``apply_overrides`` (with the closed-loop
+    settings of the issue: delivery rest, goal margin 0.03 m, 10 s per solve)."""
+    s = Scenario(name=name, objects=objects, rule=rule, m_o=m_o, n_o=n_o,
+                 events=list(events or []), **{k: v for k, v in bounds.items() if k != "goals"},
+                 goals={k: list(v) for k, v in bounds["goals"].items()})
+    return apply_overrides(s, {**CLOSED_LOOP, **overrides})
+
+
+def two_objects() -> list[ObjectSpec]:
+    """``a`` (red) is the cheaper to deliver and goes first with (m_o, n_o) = (1, 1); ``b``
+    (green) waits its turn."""
+    return [ObjectSpec("a", [0.1, 0.1], "red"), ObjectSpec("b", [-0.1, 0.1], "green")]
+
+
+# --- tracing the hands ---------------------------------------------------------------------------
+
+
+@dataclass
+class Trace:
+    """Hand positions (metres, (K, 2, 2): step, arm, xy) at every simulation step of one run."""
+
+    t: list[float] = field(default_factory=list)
+    hand_pos: list[np.ndarray] = field(default_factory=list)
+
+    def hands(self) -> np.ndarray:
+        return np.array(self.hand_pos)
+
+
+def run(scenario: Scenario, duration: float | None = None, **kwargs) -> tuple[Summary, Trace]:
+    """``simulate(scenario)``, with the hands' measured positions traced by a Simulator monitor.
+
+    ``simulate`` builds its own Diagram and Simulator, so the monitor is attached by wrapping the
+    module's ``MakeDiagram`` and ``Simulator`` for the duration of this call (nothing else of the
+    run changes: the monitor only evaluates the StateEstimator's output)."""
+    trace = Trace()
+    built = {}
+    make_diagram, simulator_class = simulate_module.MakeDiagram, simulate_module.Simulator
+
+    def traced_make_diagram(*args, **kw):
+        built["dual"] = make_diagram(*args, **kw)
+        return built["dual"]
+
+    def traced_simulator(diagram):
+        simulator = simulator_class(diagram)
+        dual = built["dual"]
+        estimator, n = dual.stack.estimator, dual.station.n_objects
+        port = estimator.get_measured_state_output_port()
+
+        def monitor(root_context):
+            measured = port.Eval(estimator.GetMyContextFromRoot(root_context))
+            trace.t.append(root_context.get_time())
+            trace.hand_pos.append(split_measured_state(measured, n)["hand_pos"].copy())
+            return EventStatus.Succeeded()
+
+        simulator.set_monitor(monitor)
+        return simulator
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(simulate_module, "MakeDiagram", traced_make_diagram)
+        mp.setattr(simulate_module, "Simulator", traced_simulator)
+        summary = simulate(scenario, duration, **kwargs)
+    assert trace.t, "the monitor never ran: simulate() no longer uses MakeDiagram/Simulator"
+    return summary, trace
+
+
+# --- what every run must show ------------------------------------------------------------------
+
+
+def inside(box: list[float], xy) -> bool:
+    return box[0] <= xy[0] <= box[1] and box[2] <= xy[1] <= box[3]
+
+
+def describe(summary: Summary, j: int) -> str:
+    o = summary.objects[j]
+    return (f"{o['name']} (goal {o['goal']} = {summary.goals[o['goal']]}): ended at "
+            f"{summary.final_object_pos[j]}, speed {summary.final_object_speed[j]}, delivered at "
+            f"{summary.delivered_time_s[j]}; last replans: {summary.replans[-3:]}")
+
+
+def assert_all_at_rest_in_goals(summary: Summary, goals: dict[str, list[float]] | None = None):
+    """Rule of the closed loop: every object ends at rest inside its (true, not shrunk) goal box —
+    ``goals`` if given (the boxes the test expects), else the summary's."""
+    goals = goals or summary.goals
+    for j, o in enumerate(summary.objects):
+        pos = summary.final_object_pos[j]
+        assert len(pos) == 3, describe(summary, j)
+        assert inside(goals[o["goal"]], pos[:2]), "not in its goal: " + describe(summary, j)
+        assert summary.final_object_speed[j] < REST_SPEED, "still moving: " + describe(summary, j)
+        assert summary.delivered_time_s[j] is not None, "never delivered: " + describe(summary, j)
+        assert 0 <= summary.delivered_time_s[j] <= summary.sim_time_s
+    assert summary.all_delivered
+
+
+def assert_replans_recorded(summary: Summary, scenario: Scenario) -> None:
+    """One replan per Δt from t = 0 on, each with a known status and a wall time."""
+    replans = summary.replans
+    assert replans, "no replan recorded"
+    times = [r["t"] for r in replans]
+    assert times == pytest.approx([k * scenario.dt for k in range(len(replans))], abs=1e-6)
+    assert times[-1] >= summary.sim_time_s - scenario.dt - 1e-6  # none missing at the end
+    for r in replans:
+        assert r["status"] in KNOWN_STATUSES, r
+        assert isinstance(r["wall_s"], float) and 0 <= r["wall_s"] < 60, r
+        if r["status"] not in SOLUTION_STATUSES | {"done", "stuck"}:
+            assert r["note"], f"a replan without a plan must say what it kept: {r}"
+    assert replans[-1]["status"] == "done"
+
+
+def assert_timing(summary: Summary) -> None:
+    assert summary.realtime_factor > 0
+    assert summary.wall_time_s > 0
+    assert summary.realtime_factor == pytest.approx(summary.sim_time_s / summary.wall_time_s,
+                                                    rel=0.01)
+
+
+# --- small scene, reachable goals --------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rule", [1, 2])
+def test_small_scene_every_object_ends_at_rest_in_its_goal(rule: int) -> None:
+    objects = [ObjectSpec("a", [0.1, 0.1], "red"), ObjectSpec("b", [-0.1, 0.1], "green"),
+               ObjectSpec("c", [0.0, -0.1], "red")]
+    scenario = scene(f"small_rule{rule}", objects, rule=rule, m_o=2, n_o=3)
+    summary, trace = run(scenario)
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert summary.goals == VD["goals"]
+    assert summary.objects == [{"name": o.name, "goal": o.goal} for o in objects]
+    assert_replans_recorded(summary, scenario)
+    assert_timing(summary)
+    # the run stops soon after the last delivery rather than running to the default duration
+    assert summary.sim_time_s <= max(summary.delivered_time_s) + 10 * scenario.dt
+    # the hands stay in their range (the controller may overshoot a little)
+    hands = trace.hands()
+    x0, x1, y0, y1 = scenario.workspace
+    tolerance = 0.03
+    assert hands[..., 0].min() >= x0 - tolerance and hands[..., 0].max() <= x1 + tolerance
+    assert hands[..., 1].min() >= y0 - tolerance and hands[..., 1].max() <= y1 + tolerance
+
+
+# --- a throw onto an unreachable goal ------------------------------------------------------------
+
+
+def test_rule2_throws_an_object_onto_an_unreachable_goal_where_it_comes_to_rest() -> None:
+    scenario = scene("throw", [ObjectSpec("a", [0.0, 0.2], "green")], rule=2, bounds=VC)
+    goal = VC["goals"]["green"]
+    assert goal[2] > VC_HAND_RANGE_Y + scenario.objects[0].grasp_half_size  # out of reach
+    summary, trace = run(scenario)
+    assert_all_at_rest_in_goals(summary, goals=VC["goals"])
+    assert_replans_recorded(summary, scenario)
+    assert_timing(summary)
+    # thrown: the hands never went beyond their range, the object ended well beyond it
+    hand_y = trace.hands()[..., 1]
+    assert hand_y.max() <= VC_HAND_RANGE_Y + 0.01, f"a hand reached y = {hand_y.max():.3f}"
+    assert summary.final_object_pos[0][1] > 0.95
+    assert summary.final_object_pos[0][1] > hand_y.max() + 0.05
+
+
+# --- environment events ------------------------------------------------------------------------
+
+
+def test_object_knocked_while_waiting_its_turn_is_still_delivered() -> None:
+    knock = Event(time=2.0, kind="move_object", target="b", position=[-0.25, -0.15])
+    scenario = scene("knock_waiting", two_objects(), events=[knock])
+    summary, _ = run(scenario)
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert_replans_recorded(summary, scenario)
+    assert summary.events == [knock.__dict__]
+    # b was still waiting when it was knocked: a went first
+    assert summary.delivered_time_s[0] < summary.delivered_time_s[1]
+    first_b = next(r["t"] for r in summary.replans if "b" in r["objects"])
+    assert first_b > knock.time
+
+
+def test_object_knocked_out_of_its_goal_after_delivery_is_delivered_again() -> None:
+    knock = Event(time=9.0, kind="move_object", target="a", position=[0.3, 0.25])
+    scenario = scene("knock_delivered", two_objects(), events=[knock])
+    summary, _ = run(scenario)
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert_replans_recorded(summary, scenario)
+    before = [r for r in summary.replans if r["t"] < knock.time]
+    after = [r for r in summary.replans if r["t"] > knock.time]
+    assert before[-1]["delivered"] >= 1, "a was to be delivered before the knock"
+    assert after[0]["delivered"] < before[-1]["delivered"], "the knock took a out of its goal"
+    assert summary.delivered_time_s[0] > knock.time, "a's delivery is the one after the knock"
+    assert any("a" in r["objects"] for r in after), "the planner fetched a again"
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "planner bug (reported): the grasp committed by the previous plan is kept although the object "
+    "is no longer in the hand, so every horizon up to max_horizon is infeasible at every replan "
+    "(1.3-1.6 s each) and the object is never fetched again; remove this marker once fixed"))
+def test_object_knocked_out_of_the_hand_mid_carry_is_fetched_again() -> None:
+    """A failed grasp: the object slips out of the hand (is knocked away) while it is carried."""
+    knock = Event(time=1.5, kind="move_object", target="a", position=[0.3, 0.25])
+    scenario = scene("knock_held", [ObjectSpec("a", [0.1, 0.1], "red")], events=[knock])
+    summary = simulate(scenario, duration=25.0)  # fetched again and delivered by t ~ 15 s
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert summary.delivered_time_s[0] > knock.time
+
+
+def test_goal_moved_before_delivery_object_ends_in_the_new_goal() -> None:
+    old, new = VD["goals"]["green"], [-0.6, -0.3, 0.45, 0.75]
+    move = Event(time=2.0, kind="move_goal", target="green", box=new)
+    scenario = scene("move_goal", two_objects(), events=[move])
+    summary, _ = run(scenario)
+    assert summary.goals == {"red": VD["goals"]["red"], "green": new}
+    assert_all_at_rest_in_goals(summary, goals={"red": VD["goals"]["red"], "green": new})
+    assert not inside(old, summary.final_object_pos[1][:2])
+    assert summary.delivered_time_s[1] > move.time
+    assert_replans_recorded(summary, scenario)
+
+
+# --- replay HTML -------------------------------------------------------------------------------
+
+EXTERNAL = [
+    # an element that loads a resource from another host (absolute or protocol-relative URL)
+    re.compile(r"<(?:script|link|img|iframe|source|embed|video|audio)\b[^>]*?\b(?:src|href)\s*=\s*"
+               r"[\"']?\s*(?:https?:)?//", re.IGNORECASE),
+    re.compile(r"url\(\s*[\"']?\s*(?:https?:)?//", re.IGNORECASE),  # CSS url(...)
+    re.compile(r"@import\s+(?:url\()?\s*[\"']?\s*(?:https?:)?//", re.IGNORECASE),
+]
+
+
+def test_replay_html_is_written_and_self_contained(tmp_path) -> None:
+    scenario = scene("tiny", [ObjectSpec("a", [0.1, 0.1], "red")])
+    path = tmp_path / "replay.html"
+    summary = simulate(scenario, duration=2.0, html=path)
+    assert summary.sim_time_s == pytest.approx(2.0)
+    assert path.is_file()
+    assert path.stat().st_size > 100_000
+    html = path.read_text()
+    assert is_self_contained(html)
+    for pattern in EXTERNAL:
+        assert not pattern.search(html), pattern.search(html).group(0)
+    assert "<script" in html.lower()
+    # the recording is in it (Meshcat's animation of the run), not only the viewer
+    assert "animation" in html
+
+
+def test_self_containment_checks_catch_external_resources() -> None:
+    """The checks above are not vacuous."""
+    for page in ('<script src="https://cdn.example.com/three.js"></script>',
+                 "<link rel='stylesheet' href='//fonts.example.com/a.css'>",
+                 '<img src="http://example.com/a.png">'):
+        assert any(p.search(page) for p in EXTERNAL), page
+    assert not is_self_contained('<script src="https://cdn.example.com/three.js"></script>')
+    assert not any(p.search('<script>a.href="https://immersiveweb.dev/"</script>')
+                   for p in EXTERNAL)
+
+
+# --- robustness --------------------------------------------------------------------------------
+
+
+def test_solver_time_outs_never_stop_the_simulation() -> None:
+    objects = [ObjectSpec("a", [0.1, 0.1], "red"), ObjectSpec("b", [-0.1, 0.1], "green"),
+               ObjectSpec("c", [0.0, -0.1], "red")]
+    scenario = scene("time_outs", objects, m_o=2, n_o=3, solver={"time_limit_s": 0.001})
+    summary = simulate(scenario, duration=4.0)
+    assert summary.sim_time_s == pytest.approx(4.0)
+    assert [r["t"] for r in summary.replans] == pytest.approx([0.0, 1.0, 2.0, 3.0])
+    statuses = {r["status"] for r in summary.replans}
+    assert statuses <= KNOWN_STATUSES
+    assert "time_limit" in statuses, summary.replans
+    for r in summary.replans:
+        if r["status"] not in SOLUTION_STATUSES:
+            assert "kept the previous plan" in r["note"], r
+    assert summary.realtime_factor > 0
+    assert all(math.isfinite(c) for p in summary.final_object_pos for c in p)
+
+
+def test_failing_replans_are_recorded_and_the_previous_plan_still_delivers(monkeypatch) -> None:
+    """Solver errors injected into three consecutive solves mid-run: each replan records
+    "error" with the exception and keeps the plan in force; the task still completes."""
+    real_solve_step = planner_module.solve_step
+    calls = {"n": 0}
+
+    def flaky_solve_step(*args, **kwargs):
+        calls["n"] += 1
+        if 3 <= calls["n"] <= 5:
+            raise RuntimeError(f"injected failure {calls['n']}")
+        return real_solve_step(*args, **kwargs)
+
+    monkeypatch.setattr(planner_module, "solve_step", flaky_solve_step)
+    scenario = scene("flaky", [ObjectSpec("a", [0.1, 0.1], "red")])
+    summary = simulate(scenario)
+    errors = [r for r in summary.replans if r["status"] == "error"]
+    assert len(errors) == 3, summary.replans
+    assert all("RuntimeError: injected failure" in r["note"] for r in errors)
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert_replans_recorded(summary, scenario)
+
+
+# --- CLI ---------------------------------------------------------------------------------------
+
+CLI_SCENARIO = """\
+name: cli_closed_loop
+workspace: [-0.9, 0.9, -0.3, 0.9]
+max_speed: 0.2
+max_force: 0.1
+goals:
+  red: [0.225, 0.575, 0.65, 0.95]
+  green: [-0.175, 0.175, 0.85, 1.15]
+objects:
+  - {name: object1, position: [0.1, 0.1], goal: red}
+rule: 1
+m_o: 1
+n_o: 1
+delivery: rest
+goal_margin: 0.03
+solver: {time_limit_s: 10}
+"""
+
+
+def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:
+    scenario_path = tmp_path / "scene.yaml"
+    scenario_path.write_text(CLI_SCENARIO)
+    load_scenario(str(scenario_path), {})  # the file is a valid scenario on its own
+    out = tmp_path / "summary.json"
+    code = main(["simulate", str(scenario_path), "--duration", "30", "--summary", str(out)])
+    printed = capsys.readouterr()
+    assert code == 0, printed.err
+    assert f"wrote {out}" in printed.out
+    data = json.loads(out.read_text())
+    for key in ("goals", "objects", "final_object_pos", "final_object_speed", "delivered_time_s",
+                "replans", "realtime_factor"):
+        assert key in data, key
+    assert data["goals"] == {"red": [0.225, 0.575, 0.65, 0.95],
+                             "green": [-0.175, 0.175, 0.85, 1.15]}
+    assert data["objects"] == [{"name": "object1", "goal": "red"}]
+    assert len(data["final_object_pos"]) == 1
+    assert all(len(p) == 3 and all(isinstance(c, float) for c in p)
+               for p in data["final_object_pos"])
+    assert len(data["final_object_speed"]) == 1
+    assert isinstance(data["final_object_speed"][0], float)
+    assert len(data["delivered_time_s"]) == 1
+    assert isinstance(data["delivered_time_s"][0], float)
+    assert data["replans"]
+    for r in data["replans"]:
+        assert {"t", "wall_s", "status"} <= set(r), r
+        assert isinstance(r["t"], float) and isinstance(r["wall_s"], float), r
+        assert r["status"] in KNOWN_STATUSES, r
+    assert isinstance(data["realtime_factor"], float) and data["realtime_factor"] > 0
+    # and the object really is at rest in its goal
+    assert inside(data["goals"]["red"], data["final_object_pos"][0][:2])
+    assert data["final_object_speed"][0] < REST_SPEED
