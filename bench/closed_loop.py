@@ -50,7 +50,7 @@ import yaml
 
 import dualarm_mpc
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.simulate import simulate
+from dualarm_mpc.simulate import on_robot, simulate
 
 SCENARIO = "table1_vd"
 M_O, N_O = 2, 6
@@ -111,8 +111,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 
 def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict]) -> dict:
-    out = {"rule": rule, "seed": seed, "m_o": M_O, "n_o": N_O, "delivery": "rest",
-           "goal_margin": 0.03}
+    """The robot's settings (as ``dualarm-mpc simulate``), then this run's, then ``--set``."""
+    out = {**on_robot(load_scenario(SCENARIO)), "rule": rule, "seed": seed, "m_o": M_O,
+           "n_o": N_O}
     if time_limit is not None:
         out["solver"] = {"time_limit_s": time_limit}
     for more in extra:

@@ -1,4 +1,4 @@
-"""LTL over the finite horizon → mixed-integer linear constraints (Wolff et al. [7], Kurtz & Lin [18]).
+"""LTL over the finite horizon → mixed-integer linear constraints ([7] Wolff, [18] Kurtz & Lin).
 
 The formula is put in negation normal form, then each subformula φ at step k gets a truth value
 z_φ(k) that may only be 1 if φ holds, which is all that is needed with the root fixed to 1:
@@ -26,9 +26,9 @@ from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc.linear import Rows, bound, new_variables
 from dualarm_mpc.ltl import (
+    Always,
     And,
     Atom,
-    Always,
     Const,
     Eventually,
     Formula,

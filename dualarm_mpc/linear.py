@@ -1,4 +1,4 @@
-"""Vectorized linear rows: many constraints ``lb ≤ Σ c·x ≤ ub`` added to a MathematicalProgram at once.
+"""Vectorized linear rows: many constraints ``lb ≤ Σ c·x ≤ ub`` added to a program at once.
 
 Constraint families (dynamics, picking model, LTL, ...) are written as whole arrays of rows,
 ``rows.add([(coef, var_index), ...], lb, ub)`` with numpy broadcasting, and emitted as one sparse

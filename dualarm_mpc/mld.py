@@ -298,5 +298,6 @@ def violations(model: Model, traj: Trajectory, tol: float = 1e-5) -> list[str]:
     for k, i, j in zip(*np.nonzero(g[1:]), strict=True):
         d = np.abs(traj.hand_pos[k + 1, i] - traj.object_pos[k + 1, j]).max()
         if d > model.grasp_half[j] + tol:
-            out.append(f"eq. (10): hand {i + 1} grabs object {j + 1} at step {k + 1} from {d:.3f} m")
+            out.append(f"eq. (10): hand {i + 1} grabs object {j + 1} at step {k + 1} "
+                       f"from {d:.3f} m")
     return out

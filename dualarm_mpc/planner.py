@@ -17,7 +17,7 @@ import numpy as np
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc import program
-from dualarm_mpc.encoding import EncodingError, Encoder, Literal
+from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
 from dualarm_mpc.mld import Box, Model, State, reachability, simulate
 from dualarm_mpc.plan import Plan, Segment, Trajectory
@@ -215,10 +215,12 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
     culprits = [name for name, f in spec.rules if not feasible([(name, f)]).has_solution]
     if culprits:
         return f"{head}: the task conflicts with rule(s) {', '.join(culprits)}"
-    return f"{head}: the rules {', '.join(n for n, _ in spec.rules)} together conflict with the task"
+    names = ", ".join(n for n, _ in spec.rules)
+    return f"{head}: the rules {names} together conflict with the task"
 
 
-def embed_step(scenario: Scenario, state: State, objects: list[int], local: Trajectory) -> Trajectory:
+def embed_step(scenario: Scenario, state: State, objects: list[int],
+               local: Trajectory) -> Trajectory:
     """The step's trajectory over all objects: those outside the step stay where they are."""
     K1 = len(local.hand_pos)
     n = scenario.n_objects

@@ -1,6 +1,6 @@
-"""The MILP of one horizon: the MLD model (eqs. 1, 7–11, 14–16) and cost (17) on a MathematicalProgram.
+"""The MILP of one horizon: the MLD model (eqs. 1, 7–11, 14–16) and cost (17) as a program.
 
-One ``add_<family>`` function per constraint family, each built in vectorized blocks (``linear.Rows``)
+One ``add_<family>`` function per constraint family, built in vectorized blocks (``linear.Rows``)
 with every big-M derived from the scenario's bounds and the reachable boxes of ``mld.reachability``.
 The LTL part is added by ``encoding.py``; this module knows nothing of formulas.
 """
@@ -82,7 +82,7 @@ def add_bounds(prog, x: HorizonVariables, model: Model, state: State, reach: Rea
 
 
 def add_dynamics(prog, x: HorizonVariables, model: Model) -> None:
-    """Eq. (1): double integrators ``p⁺ = p + Δt·v`` (hands and objects), ``v⁺ = v + Δt·u`` (hands)."""
+    """Eq. (1): double integrators ``p⁺ = p + Δt·v`` (hands, objects), ``v⁺ = v + Δt·u`` (hands)."""
     rows = Rows()
     dt = model.dt
     rows.add([(1, x.hand_pos[1:]), (-1, x.hand_pos[:-1]), (-dt, x.hand_vel[:-1])], 0, 0)

@@ -21,7 +21,7 @@ from dualarm_mpc import recording
 from dualarm_mpc.diagram import MakeDiagram
 from dualarm_mpc.mld import Box
 from dualarm_mpc.scenario import Event, Scenario
-from dualarm_mpc.systems.planner import Replan
+from dualarm_mpc.systems.planner import REST_SPEED, Replan
 
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
 # object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
@@ -36,7 +36,7 @@ def on_robot(scenario: Scenario) -> dict:
     if scenario.random_objects is not None:
         extra["random_objects"] = {"min_separation": scenario.object_size + 0.02}
     return {**ON_ROBOT, **extra}
-SETTLE_S = 5.0  # simulated seconds after the last replan, for sliding objects to come to rest
+SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
         pc = plant.GetMyMutableContextFromRoot(context)
         z = plant.EvalBodyPoseInWorld(pc, body).translation()[2]
         plant.SetFreeBodyPose(pc, body, RigidTransform([*event.position, z]))
-        plant.SetFreeBodySpatialVelocity(body, SpatialVelocity.Zero(), pc)
+        plant.SetFreeBodySpatialVelocity(pc, body, SpatialVelocity.Zero())
     else:
         dual.planner.set_goal(dual.planner.GetMyMutableContextFromRoot(context), event.target,
                               event.box)
@@ -113,7 +113,8 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
                 progress(r)
         seen = len(replans)
         pending = [e for e in events if e.time > t]
-        if replans and replans[-1].status in ("done", "stuck") and not pending:
+        if (replans and replans[-1].status in ("done", "stuck") and not pending
+                and _all_still(dual, context)):
             finished_at = finished_at if finished_at is not None else t
             if t - finished_at >= SETTLE_S:
                 break
@@ -125,6 +126,13 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     return _summary(scenario, dual, context, t, wall)
 
 
+def _all_still(dual, context) -> bool:
+    plant = dual.station.plant
+    pc = plant.GetMyContextFromRoot(context)
+    return all(np.linalg.norm(plant.EvalBodySpatialVelocityInWorld(pc, b).translational())
+               < REST_SPEED for b in dual.station.objects)
+
+
 def _summary(scenario: Scenario, dual, context, t: float, wall: float) -> Summary:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
@@ -134,7 +142,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float) -> Summar
              for b in dual.station.objects]
     inside = [bool(Box.of(s.goals[o.goal]).contains(pos[j, :2]))
               for j, o in enumerate(scenario.objects)]
-    resting = [inside[j] and speed[j] < 0.01 for j in range(scenario.n_objects)]
+    resting = [inside[j] and speed[j] < REST_SPEED for j in range(scenario.n_objects)]
     return Summary(
         goals=s.goals,
         objects=[{"name": o.name, "goal": o.goal} for o in scenario.objects],

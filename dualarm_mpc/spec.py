@@ -1,4 +1,4 @@
-"""Specifications: φ_task (eq. 13), the common-sense rules (18)–(20) and user rules, as LTL formulas.
+"""Specifications: φ_task (eq. 13), the common-sense rules (18)–(20) and user rules, as LTL.
 
 Everything here is a formula: rules are written in the text syntax with placeholders (``i`` ranges
 over the arms, any other placeholder over the objects of the sequential step, distinct placeholders

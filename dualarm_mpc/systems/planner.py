@@ -47,6 +47,7 @@ REST_SPEED = 0.01  # m/s: an object slower than this counts as resting
 STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is measurement noise
 SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the plan's own state
 SNAP_VELOCITY = 0.05  # m/s
+GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close to the grasp box
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,8 @@ class MpcState:
     step_objects: tuple[int, ...] = ()
     step_target: int = 0  # delivered count at which the current step is done
     horizon_end: float = 0.0  # sim time at the end of the current plan's horizon
-    grasp_start: np.ndarray | None = None  # the plan's η of the step's objects, (T+1, 2, n)
+    # The last plan's step objects and their η, (T+1, 2, n): the next replan's MIP start.
+    grasp_start: tuple[tuple[int, ...], np.ndarray] | None = None
     delivered_time: tuple[float | None, ...] = ()
     replans: tuple[Replan, ...] = field(default_factory=tuple)
 
@@ -184,8 +186,7 @@ class MpcPlanner(LeafSystem):
             grasp_start = s.grasp_start
         spec = specification(sc, objects, rules=self._rules)
         spec = dataclasses.replace(spec, m_o=max(1, min(spec.m_o, target - n_done)))
-        start = _shifted_start(grasp_start, objects, s.step_objects) if grasp_start is not None \
-            else None
+        start = _shifted_start(*grasp_start, objects) if grasp_start is not None else None
         res = None
         # The shortest feasible horizon, every replan: with cost (17) alone, a longer horizon
         # lets the plan idle first, and a receding horizon would then never arrive.
@@ -205,7 +206,7 @@ class MpcPlanner(LeafSystem):
         plan = TimedTrajectory(t, sc.dt, traj)
         return self._record(s, t, wall0, res.status.value, res, plan=plan,
                             horizon_end=t + res.horizon * sc.dt,
-                            grasp_start=res.trajectory.grasp, **changes)
+                            grasp_start=(tuple(objects), res.trajectory.grasp), **changes)
 
     def _committed_state(self, t: float, s: MpcState, measured: np.ndarray) -> State:
         """The state a replan starts from: the measured one, with the grasp the previous plan
@@ -234,7 +235,14 @@ class MpcPlanner(LeafSystem):
             close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < SNAP_POSITION)
                      & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < SNAP_VELOCITY))
             obj_pos[close], obj_vel[close] = traj.object_pos[k][close], traj.object_vel[k][close]
-        grasp = sample_grasp(s.plan, t).reshape(2, sc.n_objects).round().astype(int)
+        if t < s.horizon_end - 1e-9:
+            grasp = sample_grasp(s.plan, t).reshape(2, sc.n_objects).round().astype(int)
+        else:  # the plan is over: what the gripper holds
+            grasp = m["grasp"].round().astype(int)
+        # A grasp of an object no longer at the hand (knocked away, or never caught) is void.
+        half = np.array([o.grasp_half_size for o in sc.objects])
+        reach = np.abs(m["hand_pos"][:, None] - obj_pos[None]).max(axis=2)  # (2, N)
+        grasp[reach > half[None] + GRASP_SLACK] = 0
         for i, j in zip(*np.nonzero(grasp), strict=True):
             obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
         return State(hand_pos, hand_vel, obj_pos, obj_vel, grasp)
@@ -275,7 +283,7 @@ def _hold(t: float, dt: float, state: State) -> TimedTrajectory:
     return TimedTrajectory(t, dt, traj)
 
 
-def _shifted_start(grasp: np.ndarray, objects: list[int], previous: tuple[int, ...]):
+def _shifted_start(previous: tuple[int, ...], grasp: np.ndarray, objects: list[int]):
     """A MIP start from the previous plan's grasps, one step on (binaries only; HiGHS completes
     the rest), for the step's objects that were in the previous plan."""
     where = {j: n for n, j in enumerate(previous)}
@@ -287,9 +295,8 @@ def _shifted_start(grasp: np.ndarray, objects: list[int], previous: tuple[int, .
             if j not in where:
                 continue
             for k in range(1, x.horizon + 1):
-                old = grasp[min(k + 1, K), :, where[j]]
                 index.append(x.eta[k, :, n_new])
-                value.append(old)
+                value.append(grasp[min(k + 1, K), :, where[j]])
         if not index:
             return np.zeros(0, int), np.zeros(0)
         return np.concatenate(index), np.concatenate(value).astype(float)
