@@ -251,10 +251,6 @@ def test_object_knocked_out_of_its_goal_after_delivery_is_delivered_again() -> N
     assert any("a" in r["objects"] for r in after), "the planner fetched a again"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "planner bug (reported): the grasp committed by the previous plan is kept although the object "
-    "is no longer in the hand, so every horizon up to max_horizon is infeasible at every replan "
-    "(1.3-1.6 s each) and the object is never fetched again; remove this marker once fixed"))
 def test_object_knocked_out_of_the_hand_mid_carry_is_fetched_again() -> None:
     """A failed grasp: the object slips out of the hand (is knocked away) while it is carried."""
     knock = Event(time=1.5, kind="move_object", target="a", position=[0.3, 0.25])
