@@ -181,7 +181,9 @@ class MpcPlanner(LeafSystem):
             target = n_done + min(sc.m_o, len(objects))
             grasp_start = None
         else:
-            objects = [j for j in s.step_objects if j in remaining or state.grasp[:, j].any()]
+            # Delivered ones leave the step (a hand still holding one lets go): else they would
+            # satisfy φ_task again and the step would never move on.
+            objects = [j for j in s.step_objects if j in remaining]
             target = s.step_target
             grasp_start = s.grasp_start
         spec = specification(sc, objects, rules=self._rules)
