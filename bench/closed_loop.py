@@ -34,11 +34,8 @@ Runs go one after another in this process, so the timings are those of one other
 from __future__ import annotations
 
 import argparse
-import importlib.metadata
 import json
 import os
-import platform
-import subprocess
 import sys
 import time
 import traceback
@@ -47,9 +44,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
 
-import dualarm_mpc
-from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.scenario import load_scenario, merge_overrides
 from dualarm_mpc.simulate import on_robot, simulate
 
 SCENARIO = "table1_vd"
@@ -60,24 +57,6 @@ NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object d
 
 
 # --- command line ------------------------------------------------------------------------------
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``0-2`` (a range), ``0,3,7`` (a list) or ``3`` (a count: seeds 0..2), as bench/table2.py."""
-    try:
-        if "-" in text:
-            lo, hi = (int(v) for v in text.split("-"))
-            seeds = list(range(lo, hi + 1))
-        elif "," in text:
-            seeds = [int(v) for v in text.split(",")]
-        else:
-            seeds = list(range(int(text)))
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected 0-2, 0,3,7 or a count, got {text!r}") from err
-    if not seeds:
-        raise argparse.ArgumentTypeError(f"no seeds in {text!r} (a single number is a count; "
-                                         "seed 0 alone is 0-0)")
-    return seeds
 
 
 def parse_set(text: str) -> dict:
@@ -117,16 +96,8 @@ def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict])
     if time_limit is not None:
         out["solver"] = {"time_limit_s": time_limit}
     for more in extra:
-        merge(out, more)
+        merge_overrides(out, more)
     return out
-
-
-def merge(into: dict, extra: dict) -> None:
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
-            merge(into[key], value)
-        else:
-            into[key] = value
 
 
 def resting_in_goal(summary) -> list[bool]:
@@ -239,15 +210,6 @@ def summarize(records: list[dict], rule: int) -> dict:
     }
 
 
-def fmt(value, spec: str = ".2f") -> str:
-    return "—" if value is None else format(value, spec)
-
-
-def table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
 def walls(w: dict) -> str:
     return f"{fmt(w['median'], '.3f')} / {fmt(w['p95'], '.3f')} / {fmt(w['max'], '.2f')}"
 
@@ -301,27 +263,6 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
 # --- output ------------------------------------------------------------------------------------
 
 
-def git(package: Path, *args: str) -> str | None:
-    try:
-        out = subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True)
-    except OSError:
-        return None
-    return out.stdout.strip() if out.returncode == 0 else None
-
-
-def machine() -> dict:
-    """The machine and the code measured (commit and uncommitted changes of the package)."""
-    package = Path(dualarm_mpc.__file__).parent
-    return {
-        "platform": platform.platform(), "processor": platform.processor(),
-        "cpu_count": os.cpu_count(), "python": sys.version.split()[0],
-        "highspy": importlib.metadata.version("highspy"),
-        "drake": importlib.metadata.version("drake"),
-        "dualarm_mpc": str(package), "git_commit": git(package, "rev-parse", "HEAD"),
-        "git_changes": git(package, "status", "--porcelain", "--", "."),
-    }
-
-
 def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
                complete: bool) -> None:
     """Written after every run (``complete`` false until the last), atomically."""
@@ -329,10 +270,7 @@ def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: 
     data = {"scenario": SCENARIO, "m_o": M_O, "n_o": N_O, "options": options, "machine": info,
             "complete": complete, "summary": [summarize(records, rule) for rule in args.rules],
             "runs": records}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(path)
+    write_json_atomic(path, data)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -348,9 +286,7 @@ def main(argv: list[str] | None = None) -> int:
         print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
         write_json(args.json, args, records, info, complete=k == len(tasks))
     text = report(records, args) + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
-    print(text)
-    args.json.with_suffix(".md").write_text(text)
-    print(f"wrote {args.json} and {args.json.with_suffix('.md')}", file=sys.stderr)
+    write_report(args.json, text)
     return 1 if any(r["status"] != "ok" for r in records) else 0
 
 

@@ -22,20 +22,17 @@ run's record, the summary rows, the machine and the options.
 from __future__ import annotations
 
 import argparse
-import importlib.metadata
-import json
 import os
-import platform
 import signal
 import statistics
-import subprocess
 import sys
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-import dualarm_mpc
+from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
+
 from dualarm_mpc.mld import State
 from dualarm_mpc.planner import PlanningError, plan, predict_horizon
 from dualarm_mpc.scenario import load_scenario
@@ -64,19 +61,6 @@ def parse_row(text: str) -> tuple[int, int]:
     except ValueError as err:
         raise argparse.ArgumentTypeError(f"expected m_o,n_o (e.g. 2,5), got {text!r}") from err
     return m_o, n_o
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``0-9`` (a range), ``0,3,7`` (a list) or ``10`` (a count: seeds 0..9)."""
-    try:
-        if "-" in text:
-            lo, hi = (int(v) for v in text.split("-"))
-            return list(range(lo, hi + 1))
-        if "," in text:
-            return [int(v) for v in text.split(",")]
-        return list(range(int(text)))
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected 0-9, 0,3,7 or a count, got {text!r}") from err
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -233,15 +217,6 @@ def summary_rows(records: list[dict]) -> list[dict]:
     return [summarize(records, (*key[:3], FORMS[key[3]])) for key in sorted(keys)]
 
 
-def fmt(value, spec: str = ".2f") -> str:
-    return "—" if value is None else format(value, spec)
-
-
-def table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
 def table2(summary: list[dict], form: str) -> str:
     """The paper's Table II next to ours, for one task form."""
     header = ["(m_o,n_o)", "rule", "runs", "our mean cost", "paper cost", "cost ratio",
@@ -303,35 +278,13 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
 # --- output ------------------------------------------------------------------------------------
 
 
-def git(package: Path, *args: str) -> str | None:
-    out = subprocess.run(["git", "-C", str(package), *args], capture_output=True, text=True)
-    return out.stdout.strip() if out.returncode == 0 else None
-
-
-def machine() -> dict:
-    """The machine and the code measured: where ``dualarm_mpc`` was imported from, its commit and
-    uncommitted changes (None outside a git checkout, e.g. a snapshot)."""
-    package = Path(dualarm_mpc.__file__).parent
-    return {
-        "platform": platform.platform(), "processor": platform.processor(),
-        "cpu_count": os.cpu_count(), "python": sys.version.split()[0],
-        "highspy": importlib.metadata.version("highspy"),
-        "drake": importlib.metadata.version("drake"),
-        "dualarm_mpc": str(package), "git_commit": git(package, "rev-parse", "HEAD"),
-        "git_changes": git(package, "status", "--porcelain", "--", "."),
-    }
-
-
 def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
                complete: bool) -> None:
     """Written after every run (``complete`` false until the last), atomically."""
     options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
     data = {"scenario": SCENARIO, "options": options, "machine": info, "complete": complete,
             "summary": summary_rows(records), "runs": records}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    tmp.replace(path)
+    write_json_atomic(path, data)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -345,9 +298,7 @@ def main(argv: list[str] | None = None) -> int:
         print(progress_line(k, len(tasks), record), file=sys.stderr, flush=True)
         write_json(args.json, args, records, info, complete=k == len(tasks))
     text = report(records, args) + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
-    print(text)
-    args.json.with_suffix(".md").write_text(text)
-    print(f"wrote {args.json} and {args.json.with_suffix('.md')}", file=sys.stderr)
+    write_report(args.json, text)
     bad = sum(r["status"] == "verify_failed" for r in records)
     return 1 if bad else 0
 

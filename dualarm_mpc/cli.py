@@ -7,7 +7,7 @@ import logging
 import sys
 
 from dualarm_mpc.ltl import LTLSyntaxError
-from dualarm_mpc.scenario import ScenarioError, load_scenario
+from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -29,16 +29,8 @@ def _overrides(args: argparse.Namespace) -> dict:
             raise ScenarioError(f"--set {text!r}: not valid YAML: {err}") from err
         if not isinstance(extra, dict):
             raise ScenarioError(f"--set {text!r}: expected 'field: value'")
-        _merge(out, extra)
+        merge_overrides(out, extra)
     return out
-
-
-def _merge(into: dict, extra: dict) -> None:
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
-            _merge(into[key], value)
-        else:
-            into[key] = value
 
 
 def _scenario_arguments(p: argparse.ArgumentParser) -> None:
@@ -102,7 +94,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     base = load_scenario(args.scenario)
     overrides = on_robot(base)
-    _merge(overrides, _overrides(args))
+    merge_overrides(overrides, _overrides(args))
     scenario = apply_overrides(base, overrides)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.rule}, "
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")

@@ -236,6 +236,15 @@ def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenari
     return scenario
 
 
+def merge_overrides(into: dict, extra: dict) -> None:
+    """Merge ``extra`` into ``into`` in place: nested dicts key by key, anything else replaced."""
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(into.get(key), dict):
+            merge_overrides(into[key], value)
+        else:
+            into[key] = value
+
+
 def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> list[ObjectSpec]:
     """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin (design §5)."""
     rng = np.random.default_rng(seed)
