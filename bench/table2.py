@@ -22,6 +22,7 @@ run's record, the summary rows, the machine and the options.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import statistics
@@ -81,6 +82,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--jobs", type=int, default=1,
                    help="runs in parallel processes (default 1: timing on an idle core)")
     p.add_argument("--json", type=Path, default=Path("bench/results/table2.json"))
+    p.add_argument("--summarize", type=Path, metavar="JSON",
+                   help="print the tables of an earlier (possibly partial) run's JSON; run nothing")
     return p.parse_args(argv)
 
 
@@ -188,6 +191,7 @@ def summarize(records: list[dict], key: tuple) -> dict:
     runs = [r for r in records if (r["m_o"], r["n_o"], r["rule"], r["task_form"]) == key]
     ok = [r for r in runs if r["status"] == "ok"]
     steps = [s for r in ok for s in r["steps"]]
+    tried = [s for r in runs for s in r["steps"]]  # also the steps of runs that failed later
     times = [r["solve_time_s"] for r in ok]
     paper_cost, paper_time = PAPER.get(key[:2], {}).get(key[2], (None, None))
     mean_cost = statistics.fmean(r["cost"] for r in ok) if ok else None
@@ -207,7 +211,8 @@ def summarize(records: list[dict], key: tuple) -> dict:
         "max_time_s": max(times) if ok else None,
         "steps": len(steps),
         "steps_optimal": sum(s["status"] == "optimal" for s in steps),
-        "steps_at_limit": sum(s["status"] == "feasible" for s in steps),
+        "steps_run": len(tried),
+        "steps_at_limit": sum(s["status"] == "feasible" for s in tried),
         "extra_horizon_tries": sum(s["horizon"] - s["predicted_horizon"] for s in steps),
     }
 
@@ -232,11 +237,12 @@ def table2(summary: list[dict], form: str) -> str:
 def detail(summary: list[dict]) -> str:
     """Where the time goes and what failed, per row, rule and form."""
     header = ["(m_o,n_o)", "rule", "form", "planning errors", "verify failures",
-              "run-budget stops", "other errors", "steps stopped at time limit",
+              "run-budget stops", "other errors", "steps stopped at time limit / run",
               "extra horizon tries", "median time (s)", "max time (s)"]
     rows = [[f"({s['m_o']},{s['n_o']})", str(s["rule"]), s["task_form"],
              str(s["planning_errors"]), str(s["verify_failures"]), str(s["run_budget_stops"]),
-             str(s["other_errors"]), str(s["steps_at_limit"]), str(s["extra_horizon_tries"]),
+             str(s["other_errors"]), f"{s['steps_at_limit']}/{s['steps_run']}",
+             str(s["extra_horizon_tries"]),
              fmt(s["median_time_s"], ".1f"), fmt(s["max_time_s"], ".1f")]
             for s in summary]
     return table(header, rows)
@@ -287,8 +293,17 @@ def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: 
     write_json_atomic(path, data)
 
 
+def summarize_file(path: Path) -> str:
+    data = json.loads(path.read_text())
+    state = "" if data["complete"] else " (incomplete: the bench was stopped)"
+    return report(data["runs"], argparse.Namespace(**data["options"])) + state
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    if args.summarize:
+        print(summarize_file(args.summarize))
+        return 0
     tasks = grid(args)
     info = machine()
     records: list[dict] = []
