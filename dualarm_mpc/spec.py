@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 from dualarm_mpc.ltl import (
     Always,
-    Atom,
     Eventually,
     Formula,
     conj,
@@ -110,7 +109,3 @@ def specification(scenario: Scenario, objects: list[int], m_o: int | None = None
         rules=tuple((name, expand(f, numbers)) for name, f in named),
     )
 
-
-def atom_names(atom: Atom) -> str:
-    """A short description of the atoms the planner knows, for error messages."""
-    return f"{atom}: known atoms are eta[i,j] (i = 1 right arm, 2 left arm) and theta[j]"
