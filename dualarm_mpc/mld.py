@@ -31,6 +31,7 @@ from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.scenario import Scenario
 
 N_HANDS = 2
+POSITION_TOL = 1e-6  # m: "inside a box" on a replayed trace (solver round-off, not physics)
 
 
 @dataclass(frozen=True)

@@ -141,9 +141,7 @@ class Plan:
             workspace=data["workspace"],
             trajectory=Trajectory.from_json(data["trajectory"]),
             delivered_step=data["delivered_step"],
-            segments=[
-                Segment(**{k: v for k, v in s.items()}) for s in data.get("segments", [])
-            ],
+            segments=[Segment(**s) for s in data.get("segments", [])],
             verified=data.get("verified", False),
         )
 

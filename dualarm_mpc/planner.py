@@ -19,7 +19,7 @@ from pydrake.solvers import MathematicalProgram
 from dualarm_mpc import program
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import Box, Model, State, reachability, simulate
+from dualarm_mpc.mld import POSITION_TOL, Box, Model, State, reachability, simulate
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, SolveResult, Start, Status, solve
@@ -239,7 +239,6 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
     rests in its goal. Raises :class:`PlanningError` with the reason when a step has no plan."""
     # The oracle's tolerance: an optimal plan leaves objects on a goal's edge, give or take a
     # rounding error.
-    from dualarm_mpc.verify import POSITION_TOL
 
     state = State.initial(scenario)
     rules = rule_formulas(scenario)

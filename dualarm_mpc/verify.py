@@ -14,12 +14,10 @@ import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import Box, Model, State, simulate, violations
+from dualarm_mpc.mld import POSITION_TOL, Box, Model, State, simulate, violations
 from dualarm_mpc.plan import Plan, Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.spec import rule_formulas, specification
-
-POSITION_TOL = 1e-6  # m
 
 
 @dataclass(frozen=True)

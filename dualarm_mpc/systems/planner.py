@@ -26,7 +26,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from dualarm_mpc.mld import Box, Model, State, reachability
-from dualarm_mpc.plan import TimedTrajectory, Trajectory
+from dualarm_mpc.plan import TimedTrajectory
 from dualarm_mpc.planner import (
     StepResult,
     embed_step,
@@ -279,9 +279,8 @@ class MpcPlanner(LeafSystem):
 
 def _hold(t: float, dt: float, state: State) -> TimedTrajectory:
     """A plan of one step: both hands at rest where they are, nothing held."""
-    n = len(state.object_pos)
-    traj = Trajectory(state.hand_pos[None], np.zeros((1, 2, 2)), np.zeros((0, 2, 2)),
-                      state.object_pos[None], np.zeros((1, n, 2)), np.zeros((1, 2, n), int))
+    plan = empty_plan(len(state.object_pos), state.hand_pos)
+    traj = dataclasses.replace(plan.trajectory, object_pos=state.object_pos[None].copy())
     return TimedTrajectory(t, dt, traj)
 
 
