@@ -49,6 +49,7 @@ class StepResult:
     solution: np.ndarray | None  # raw solver values, for a MIP start
     variables: program.HorizonVariables | None = None
     message: str = ""
+    bound: float = 0.0  # the solver's proven lower bound on the cost
 
 
 def solver_options(scenario: Scenario, time_limit_s: float | None = None) -> SolveOptions:
@@ -86,8 +87,16 @@ def _resolver(spec: Specification, x: program.HorizonVariables, state: State, sc
 
 
 def build_program(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                  pruning: bool | None = None):
-    """The MILP of one horizon: model, specification, cost. ``state`` covers all objects."""
+                  pruning: bool | None = None, allowed: np.ndarray | None = None,
+                  hands: tuple[int, ...] = (0, 1), grasp: np.ndarray | None = None,
+                  floor: np.ndarray | None = None):
+    """The MILP of one horizon: model, specification, cost. ``state`` covers all objects.
+
+    The skeleton search (``search.py``) narrows it: ``allowed`` (2, n_step) says which hand may
+    hold which of the step's objects; with one hand in ``hands`` only that hand's force is costed
+    (the other hand moves for free, out of the way of eq. 16: a relaxation); ``grasp``
+    (T+1, 2, n_step) fixes every η, and ``floor`` bounds each hand's cost from below
+    (:func:`program.add_cost`)."""
     pruning = scenario.pruning if pruning is None else pruning
     objects = list(spec.objects)
     model = Model.from_scenario(scenario, objects)
@@ -95,12 +104,12 @@ def build_program(scenario: Scenario, state: State, spec: Specification, horizon
     prog = MathematicalProgram()
     reach = reachability(model, local_state, horizon)
     x = program.new_horizon_variables(prog, horizon, len(objects))
-    program.add_bounds(prog, x, model, local_state, reach, pruning)
+    program.add_bounds(prog, x, model, local_state, reach, pruning, allowed, grasp)
     program.add_dynamics(prog, x, model)
     program.add_picking(prog, x, model, local_state, reach)
     program.add_system_constraints(prog, x, model)
     program.add_goal_atoms(prog, x, model, reach)
-    program.add_cost(prog, x, scenario.state_weight)
+    program.add_cost(prog, x, scenario.state_weight, hands, floor)
     enc = Encoder(prog, horizon, _resolver(spec, x, state, scenario))
     if spec.task_form == "counting":
         enc.require_at_least(spec.m_o, spec.events)
@@ -115,26 +124,42 @@ def build_program(scenario: Scenario, state: State, spec: Specification, horizon
 def solve_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                options: SolveOptions | None = None,
                start: Callable[[program.HorizonVariables], Start] | None = None,
-               pruning: bool | None = None) -> StepResult:
+               pruning: bool | None = None, allowed: np.ndarray | None = None,
+               hands: tuple[int, ...] = (0, 1), grasp: np.ndarray | None = None,
+               floor: np.ndarray | None = None) -> StepResult:
     """Build and solve one horizon; the trajectory is re-simulated from the solver's forces and
     grasps through the model (so it is exactly the model's, not the solver's rounding).
-    ``start(x)`` may give a MIP start for the horizon's variables ``x``."""
+    ``start(x)`` may give a MIP start for the horizon's variables ``x``; ``allowed``, ``hands``,
+    ``grasp`` and ``floor`` narrow the program as in :func:`build_program`. The cost is that of
+    ``hands``."""
     options = options or solver_options(scenario)
     t0 = time.perf_counter()
-    prog, x, model, local_state = build_program(scenario, state, spec, horizon, pruning)
+    prog, x, model, local_state = build_program(scenario, state, spec, horizon, pruning, allowed,
+                                                hands, grasp, floor)
     build = time.perf_counter() - t0
     result: SolveResult = solve(prog, options, start(x) if start else None)
     binaries = int(x.binaries.size)
     if not result.status.has_solution:
         return StepResult(result.status, horizon, None, np.inf, result.wall_time_s, build,
-                          result.gap, binaries, None, x, result.message)
+                          result.gap, binaries, None, x, result.message, bound=result.bound)
     values = result.x
     grasp = np.round(values[x.eta]).astype(int)
     force = values[x.force]
     traj = simulate(model, local_state, force, grasp)
-    cost = float(np.abs(force).sum())
+    cost = float(np.abs(force[:, list(hands)]).sum())
     return StepResult(result.status, horizon, traj, cost, result.wall_time_s, build, result.gap,
-                      binaries, values, x, result.message)
+                      binaries, values, x, result.message, bound=result.bound)
+
+
+def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
+                  options: SolveOptions | None = None) -> StepResult:
+    """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
+    the monolithic MILP (the same optimum; the search is much faster on hard steps)."""
+    if scenario.solver.search == "monolithic":
+        return solve_step(scenario, state, spec, horizon, options)
+    from dualarm_mpc.search import search_step  # search.py builds on solve_step above
+
+    return search_step(scenario, state, spec, horizon, options)
 
 
 def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> int:
@@ -179,7 +204,7 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     total = 0.0
     last = None
     for T in range(predict_horizon(scenario, state, spec), scenario.solver.max_horizon + 1):
-        res = solve_step(scenario, state, spec, T, options)
+        res = solve_horizon(scenario, state, spec, T, options)
         total += res.solve_time_s + res.build_time_s
         if on_try:
             on_try(res)

@@ -60,6 +60,12 @@ class SolverOptions:
     mip_rel_gap: float = 1e-4
     threads: int = 1
     max_horizon: int = 40
+    # "skeleton": the exact search over which objects and which hand (search.py);
+    # "monolithic": the whole step as one MILP, the reference.
+    search: str = "skeleton"
+    # Skeleton nodes where both hands may hold one object: "auto" only for objects that neither
+    # hand can deliver alone, "always" (exact against the monolithic MILP), "never".
+    handover: str = "auto"
 
 
 @dataclass
@@ -361,6 +367,12 @@ def validate(s: Scenario) -> None:
         raise ScenarioError(f"m_o: need 1 <= m_o <= n_o, got m_o={s.m_o}, n_o={s.n_o}")
     if s.solver.backend not in ("highs", "gurobi", "mosek"):
         raise ScenarioError(f"solver.backend: unknown backend {s.solver.backend!r}")
+    if s.solver.search not in ("skeleton", "monolithic"):
+        raise ScenarioError(f"solver.search: expected 'skeleton' or 'monolithic', got "
+                            f"{s.solver.search!r}")
+    if s.solver.handover not in ("auto", "always", "never"):
+        raise ScenarioError(f"solver.handover: expected 'auto', 'always' or 'never', got "
+                            f"{s.solver.handover!r}")
     if s.solver.time_limit_s <= 0:
         raise ScenarioError("solver.time_limit_s: must be positive")
     if s.solver.mip_rel_gap < 0:

@@ -70,11 +70,15 @@ class Specification:
     delivery: str
     task_form: str  # "counting" or "subsets"
     rules: tuple[tuple[str, Formula], ...]  # (name, expanded formula)
+    # The objects whose delivery counts towards m_o; all of ``objects`` unless the skeleton
+    # search fixes which ones are delivered.
+    targets: tuple[int, ...] | None = None
 
     @property
     def events(self) -> list[Formula]:
         """The ev_j of eq. (13), one per object of the step."""
-        return [delivered(j + 1, self.delivery) for j in self.objects]
+        targets = self.objects if self.targets is None else self.targets
+        return [delivered(j + 1, self.delivery) for j in targets]
 
     def task(self) -> Formula:
         """φ_task, eq. (13) literally: any m_o of the n_o objects delivered."""

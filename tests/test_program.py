@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import time
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from pydrake.solvers import MathematicalProgram
@@ -41,6 +43,8 @@ def thrown() -> Scenario:
 
 
 def step(scenario: Scenario, objects: list[int]):
+    # These tests read the monolithic program's own solution (search.py composes its plans).
+    scenario = replace(scenario, solver=replace(scenario.solver, search="monolithic"))
     state = State.initial(scenario)
     spec = specification(scenario, objects)
     result, _ = planner.plan_step(scenario, state, spec)

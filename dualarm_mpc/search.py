@@ -1,0 +1,432 @@
+"""Exact step search over the discrete skeleton: which objects, which hand (docs/search.md).
+
+The monolithic MILP of one horizon has an LP relaxation whose bound is zero (a fractional η moves
+an object while the hands' fractions cancel), so HiGHS proves optimality and infeasibility by
+enumeration alone. This module splits the same MILP along its discrete skeleton and searches it
+best-first with admissible bounds; it returns the monolithic optimum of the same horizon.
+
+*Skeleton node* (D, h): the set D of m_o objects whose delivery satisfies φ_task (13), and for
+each j ∈ D the hand h_j that may hold it (1, 2, or ``BOTH`` for a hand-over). The node's program
+is the monolithic one with η_ij(k ≥ 1) = 0 outside the skeleton and φ_task replaced by "every
+j ∈ D delivered": a restriction, so its optimum is never below the monolithic one. The nodes
+cover every plan: a plan delivers some D, the hands it uses on D are within some h, and objects
+outside D can be left untouched without changing cost or any rule — which :func:`untouchable`
+proves per rule instance by partial evaluation; objects where that proof fails stay free.
+
+*Bounds.* Costing one hand only (the other moves for free, so eq. 16 costs it nothing) and
+leaving out the rule instances that mention the other hand's objects separates a node into one
+program per hand: hand i delivers S_i = {j ∈ D : h_j = i} alone, and the sum of their optima
+bounds the node from below. A hand's optimum only grows with S_i (an object can
+always be left untouched), so before its program is solved c_i(S) ≥ max over solved subsets.
+An object j handed over (h_j = BOTH) is bounded by c(j), both hands delivering j alone.
+
+*Search.* Pop the node of least bound; solve what its bound still lacks; when both hands' programs
+are solved, put their solutions together and check the joint plan by re-simulation and direct
+LTL evaluation (``evaluate.py``, which shares no code with the encoder): if it passes, the node's
+optimum is the sum; otherwise the joint node program is solved. Stop when the incumbent is no
+worse than every open bound.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from dualarm_mpc.evaluate import evaluate
+from dualarm_mpc.ltl import (
+    FALSE,
+    TRUE,
+    Always,
+    And,
+    Atom,
+    Const,
+    Eventually,
+    Formula,
+    Implies,
+    Next,
+    Not,
+    Or,
+    Release,
+    Until,
+    WeakNext,
+    atoms,
+)
+from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Box, Model, State, simulate, violations
+from dualarm_mpc.planner import StepResult, solve_step, solver_options
+from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.solver import SolveOptions, Status
+from dualarm_mpc.spec import Specification
+
+BOTH = 2  # h_j: either hand may hold object j (a hand-over)
+
+
+# --- rule instances ----------------------------------------------------------------------------
+
+
+def instances(formula: Formula) -> tuple[Formula, ...]:
+    """The top-level conjuncts of an expanded rule (one per placeholder assignment)."""
+    return formula.args if isinstance(formula, And) else (formula,)
+
+
+def objects_of(formula: Formula) -> frozenset[int]:
+    """The object numbers (1-based) that the atoms of ``formula`` mention."""
+    return frozenset(a.index[-1] for a in atoms(formula) if a.index and isinstance(a.index[-1], int))
+
+
+def partial(f: Formula, known: dict[Atom, bool]) -> Formula:
+    """``f`` with the atoms of ``known`` (constant over all steps) replaced and simplified.
+
+    Only simplifications valid at every step of an LTLf trace are made: ``X TRUE`` is not TRUE
+    (strong next is false at the last step), everything else folds as in propositional logic
+    (``G TRUE``, ``F TRUE``, ``WX TRUE``, ``a U TRUE``, ``a R TRUE`` are TRUE; duals for FALSE)."""
+    match f:
+        case Atom():
+            return Const(known[f]) if f in known else f
+        case Const():
+            return f
+        case Not(a):
+            a = partial(a, known)
+            return Const(not a.value) if isinstance(a, Const) else Not(a)
+        case And(args) | Or(args):
+            unit, zero = (TRUE, FALSE) if isinstance(f, And) else (FALSE, TRUE)
+            kept = []
+            for a in (partial(a, known) for a in args):
+                if a == zero:
+                    return zero
+                if a != unit:
+                    kept.append(a)
+            return unit if not kept else kept[0] if len(kept) == 1 else type(f)(tuple(kept))
+        case Implies(a, b):
+            a, b = partial(a, known), partial(b, known)
+            if a == FALSE or b == TRUE:
+                return TRUE
+            if a == TRUE:
+                return b
+            return Implies(a, b)
+        case Always(a) | Eventually(a) | WeakNext(a):
+            a = partial(a, known)
+            return a if isinstance(a, Const) and (a.value or not isinstance(f, WeakNext)) \
+                else type(f)(a)
+        case Next(a):
+            a = partial(a, known)
+            return FALSE if a == FALSE else Next(a)
+        case Until(a, b) | Release(a, b):
+            a, b = partial(a, known), partial(b, known)
+            if isinstance(b, Const):
+                return b
+            return type(f)(a, b)
+    raise TypeError(f"not a Formula: {f!r}")
+
+
+def untouchable(spec: Specification, state: State, delivered: Iterable[int]) -> frozenset[int]:
+    """The step's objects outside ``delivered`` (scenario indices) that an optimal plan may leave
+    untouched: none is held now, and every rule instance that mentions one is TRUE once their η
+    are FALSE at every step. Untouching them keeps the hands' motion, hence the cost, and every
+    other object's motion, hence φ_task."""
+    local = {j: n for n, j in enumerate(spec.objects)}
+    outside = [j for j in spec.objects if j not in set(delivered)]
+    candidates = {j for j in outside if not state.grasp[:, local[j]].any()}
+    known = {Atom("eta", (i, j + 1)): False for i in (1, 2) for j in candidates}
+    numbers = {j + 1 for j in candidates}
+    for _, rule in spec.rules:
+        for inst in instances(rule):
+            if objects_of(inst) & numbers and partial(inst, known) != TRUE:
+                return frozenset()  # conservative: leave every outside object free
+    return frozenset(candidates)
+
+
+def restricted(spec: Specification, targets: Iterable[int], keep: Iterable[int]) -> Specification:
+    """A relaxation for the bounds: deliver every object of ``targets`` (φ_task stronger, as in
+    the node), and keep only the rule instances whose step objects all lie in ``keep``."""
+    targets = tuple(sorted(targets))
+    step = {j + 1 for j in spec.objects}
+    allowed = {j + 1 for j in keep}
+    rules = tuple(
+        (name, _conj([i for i in instances(f) if (objects_of(i) & step) <= allowed]))
+        for name, f in spec.rules
+    )
+    return replace(spec, targets=targets, m_o=len(targets), task_form="counting", rules=rules)
+
+
+def _conj(items: list[Formula]) -> Formula:
+    return TRUE if not items else items[0] if len(items) == 1 else And(tuple(items))
+
+
+# --- the search --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Node:
+    delivered: tuple[int, ...]  # D, scenario indices
+    hands: tuple[int, ...]  # h_j for j in D: 0 (arm 1), 1 (arm 2) or BOTH
+    free: frozenset[int] = frozenset()  # outside D and not provably untouchable
+
+    def share(self, i: int) -> tuple[int, ...]:
+        """S_i: the objects of D that hand i alone delivers."""
+        return tuple(j for j, h in zip(self.delivered, self.hands, strict=True) if h == i)
+
+    @property
+    def handed_over(self) -> tuple[int, ...]:
+        return self.share(BOTH)
+
+
+@dataclass
+class SearchStats:
+    """What the search did, for the plan JSON and the benches."""
+
+    nodes: int = 0
+    relaxations: int = 0  # one-hand and one-object programs solved
+    joint: int = 0  # joint node programs solved
+    composed: int = 0  # nodes closed by putting the one-hand solutions together
+    cpu_time_s: float = 0.0
+    solver_time_s: float = 0.0
+    timed_out: bool = False
+
+
+@dataclass
+class StepSearch:
+    """The exact search of one horizon of one sequential step."""
+
+    scenario: Scenario
+    state: State
+    spec: Specification
+    horizon: int
+    options: SolveOptions
+    handover: str = "auto"  # "auto", "always" or "never": see nodes()
+    stats: SearchStats = field(default_factory=SearchStats)
+
+    def __post_init__(self) -> None:
+        self._hand: dict[tuple[int, tuple[int, ...]], StepResult] = {}
+        self._alone: dict[int, StepResult] = {}
+        self._deadline = time.perf_counter() + self.options.time_limit_s
+        self._model = Model.from_scenario(self.scenario, list(self.spec.objects))
+        self._local = {j: n for n, j in enumerate(self.spec.objects)}
+
+    # -- the subprograms ----------------------------------------------------------------------
+
+    def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
+               start=None, floor=None) -> StepResult:
+        remaining = max(self._deadline - time.perf_counter(), 1e-3)
+        options = replace(self.options, time_limit_s=remaining)
+        res = solve_step(self.scenario, self.state, spec, self.horizon, options, start=start,
+                         allowed=allowed, hands=hands, grasp=grasp, floor=floor)
+        self.stats.solver_time_s += res.solve_time_s
+        return res
+
+    def _mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
+        allowed = np.zeros((N_HANDS, len(self.spec.objects)), bool)
+        for i, j in pairs:
+            allowed[i, self._local[j]] = True
+        return allowed
+
+    def hand(self, i: int, share: tuple[int, ...]) -> StepResult:
+        """c_i(S): hand i delivers ``share`` alone; the other hand holds nothing and costs nothing."""
+        key = (i, share)
+        if key not in self._hand:
+            spec = restricted(self.spec, share, share)
+            floor = np.zeros(N_HANDS)
+            floor[i] = self._hand_bound(i, share)
+            self._hand[key] = self._solve(spec, self._mask((i, j) for j in share), hands=(i,),
+                                          floor=floor)
+            self.stats.relaxations += 1
+        return self._hand[key]
+
+    def alone(self, j: int) -> StepResult:
+        """c(j): both hands deliver object j, every other object untouched."""
+        if j not in self._alone:
+            spec = restricted(self.spec, (j,), (j,))
+            self._alone[j] = self._solve(spec, self._mask((i, j) for i in range(N_HANDS)))
+            self.stats.relaxations += 1
+        return self._alone[j]
+
+    def _node_spec(self, node: Node) -> Specification:
+        return replace(self.spec, targets=node.delivered, m_o=len(node.delivered),
+                       task_form="counting")
+
+    def joint(self, node: Node, start=None) -> StepResult:
+        """The node's own program: the monolithic one restricted to the skeleton."""
+        pairs = [(i, j) for j, h in zip(node.delivered, node.hands, strict=True)
+                 for i in range(N_HANDS) if h in (i, BOTH)]
+        pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
+        floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
+        self.stats.joint += 1
+        return self._solve(self._node_spec(node), self._mask(pairs), start=start, floor=floor)
+
+    # -- bounds -------------------------------------------------------------------------------
+
+    def _hand_bound(self, i: int, share: tuple[int, ...]) -> float:
+        """A lower bound on c_i(share): its own if solved, else the best of its solved subsets."""
+        best = 0.0
+        for (h, s), res in self._hand.items():
+            if h == i and set(s) <= set(share):
+                best = max(best, _bound(res))
+        return best
+
+    def bound(self, node: Node) -> float:
+        split = sum(self._hand_bound(i, node.share(i)) for i in range(N_HANDS))
+        alone = [_bound(self._alone[j]) for j in node.delivered if j in self._alone]
+        return max([split] + alone)
+
+    def missing(self, node: Node) -> tuple | None:
+        """The next relaxation the node's bound lacks, or None when it has them all."""
+        for j in node.handed_over:
+            if j not in self._alone:
+                return ("alone", j)
+        for i in range(N_HANDS):
+            if (i, node.share(i)) not in self._hand:
+                return ("hand", i, node.share(i))
+        return None
+
+    # -- putting the hands together -----------------------------------------------------------
+
+    def compose(self, node: Node) -> StepResult | None:
+        """The joint plan made of each hand's own solution, if the model and the whole
+        specification (task, every rule, eq. 16) hold on its re-simulated trace; else the best
+        joint plan with the same grasps (a small MILP over θ alone), or None."""
+        parts = [self.hand(i, node.share(i)) for i in range(N_HANDS)]
+        force = np.stack([parts[i].trajectory.force[:, i] for i in range(N_HANDS)], axis=1)
+        grasp = np.stack([parts[i].trajectory.grasp[:, i] for i in range(N_HANDS)], axis=1)
+        local_state = self.state.select(list(self.spec.objects))
+        traj = simulate(self._model, local_state, force, grasp)
+        if self._feasible(traj):
+            status = (Status.OPTIMAL if all(p.status is Status.OPTIMAL for p in parts)
+                      else Status.FEASIBLE)
+            return StepResult(status, self.horizon, traj, float(np.abs(force).sum()), 0.0, 0.0,
+                              0.0, 0, None)
+        repair = self._solve(self._node_spec(node), self._mask([]), grasp=grasp)
+        return repair if repair.status.has_solution else None
+
+    def _feasible(self, traj) -> bool:
+        if violations(self._model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
+            return False
+        return evaluate(self.spec.formula(), self._trace(traj), self.horizon)
+
+    def _trace(self, traj):
+        goals = [Box.of(self.scenario.goals[o.goal]) for o in self.scenario.objects]
+
+        def value(atom: Atom, k: int) -> bool:
+            if atom.name == "eta":
+                i, j = atom.index
+                n = self._local.get(j - 1)
+                return False if n is None else bool(traj.grasp[k, i - 1, n])
+            (j,) = atom.index
+            n = self._local.get(j - 1)
+            if n is None:
+                return bool(goals[j - 1].contains(self.state.object_pos[j - 1]))
+            return bool(self._model.goals[n].contains(traj.object_pos[k, n], POSITION_TOL))
+
+        return value
+
+    # -- best-first ---------------------------------------------------------------------------
+
+    def _needs_handover(self, j: int) -> bool:
+        """Neither hand can deliver object j alone, both together can."""
+        alone = [self.hand(i, (j,)).status is Status.INFEASIBLE for i in range(N_HANDS)]
+        return all(alone) and self.alone(j).status is not Status.INFEASIBLE
+
+    def nodes(self) -> list[Node]:
+        """Every skeleton (D, h). Hand-over labels: with ``always`` for every object (then the
+        search is exact against the monolithic MILP), with ``auto`` for the objects no single
+        hand can deliver, with ``never`` for none (then it is exact over the plans in which
+        each object is held by one hand at most)."""
+        both = {j for j in self.spec.objects
+                if self.handover == "always"
+                or (self.handover == "auto" and self._needs_handover(j))}
+        out = []
+        for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
+            quiet = untouchable(self.spec, self.state, delivered)
+            free = frozenset(j for j in self.spec.objects if j not in delivered and j not in quiet)
+            labels = [(0, 1, BOTH) if j in both else (0, 1) for j in delivered]
+            out += [Node(delivered, hands, free) for hands in itertools.product(*labels)]
+        return out
+
+    def evaluate(self, node: Node, incumbent: float) -> StepResult:
+        """The node's optimum: composed from both hands' solutions when they fit together
+        (directly or with their grasps kept), else the joint node program."""
+        if node.handed_over or node.free:
+            return self.joint(node)
+        lb = self.bound(node)
+        composed = self.compose(node)
+        if composed is not None and composed.cost <= lb * (1 + self.options.mip_rel_gap) + 1e-9:
+            self.stats.composed += 1
+            return composed
+        if composed is not None and composed.solution is not None:
+            res = self.joint(node, start=lambda x, v=composed.solution: v)
+        else:
+            res = self.joint(node)
+        if composed is not None and composed.cost < res.cost:
+            return composed
+        return res
+
+    def run(self) -> StepResult:
+        """The optimum of the horizon (as the monolithic MILP), or why there is none."""
+        t0, cpu0 = time.perf_counter(), time.process_time()
+        gap = self.options.mip_rel_gap
+        counter = itertools.count()
+        heap = [(0.0, next(counter), n) for n in self.nodes()]
+        heapq.heapify(heap)
+        best: StepResult | None = None
+        undecided = np.inf  # the least bound of a node the solver could not close
+        while heap:
+            key, _, node = heapq.heappop(heap)
+            lb = self.bound(node)
+            if lb > key:  # bounds only grow: a stale key goes back in its place
+                heapq.heappush(heap, (lb, next(counter), node))
+                continue
+            if np.isinf(lb):
+                continue  # a relaxation is infeasible: so is the node
+            if best is not None and lb >= best.cost * (1 - gap) - 1e-9:
+                heapq.heappush(heap, (lb, next(counter), node))
+                break
+            if time.perf_counter() > self._deadline:
+                heapq.heappush(heap, (lb, next(counter), node))
+                self.stats.timed_out = True
+                break
+            need = self.missing(node)
+            if need is not None:
+                self.alone(need[1]) if need[0] == "alone" else self.hand(need[1], need[2])
+                heapq.heappush(heap, (self.bound(node), next(counter), node))
+                continue
+            self.stats.nodes += 1
+            res = self.evaluate(node, np.inf if best is None else best.cost)
+            if res.status.has_solution and (best is None or res.cost < best.cost):
+                best = res
+            if res.status in (Status.FEASIBLE, Status.TIME_LIMIT):
+                undecided = min(undecided, max(lb, _bound(res)))
+        open_bound = min([undecided] + [self.bound(n) for _, _, n in heap])
+        self.stats.cpu_time_s = time.process_time() - cpu0
+        wall = time.perf_counter() - t0
+        return self._result(best, open_bound, wall)
+
+    def _result(self, best: StepResult | None, open_bound: float, wall: float) -> StepResult:
+        binaries = 3 * (self.horizon + 1) * len(self.spec.objects)
+        if best is None:
+            status = Status.INFEASIBLE if np.isinf(open_bound) else Status.TIME_LIMIT
+            return StepResult(status, self.horizon, None, np.inf, wall, 0.0, np.inf, binaries,
+                              None, bound=open_bound)
+        lower = min(open_bound, best.cost)
+        gap = max(0.0, (best.cost - lower) / max(abs(best.cost), 1e-12))
+        status = Status.OPTIMAL if gap <= self.options.mip_rel_gap + 1e-9 else Status.FEASIBLE
+        return replace(best, status=status, solve_time_s=wall, build_time_s=0.0, gap=gap,
+                       binaries=binaries, bound=lower)
+
+
+def _bound(res: StepResult) -> float:
+    """A proven lower bound of a subprogram: +inf when it is infeasible."""
+    if res.status is Status.INFEASIBLE:
+        return np.inf
+    if res.status is Status.OPTIMAL:
+        return max(min(res.bound, res.cost), 0.0) if np.isfinite(res.bound) else res.cost
+    return max(res.bound, 0.0) if np.isfinite(res.bound) else 0.0
+
+
+def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
+                options: SolveOptions | None = None) -> StepResult:
+    """The skeleton search of one horizon; the same optimum as :func:`planner.solve_step`."""
+    options = options or solver_options(scenario)
+    return StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover).run()
