@@ -75,7 +75,8 @@ def instances(formula: Formula) -> tuple[Formula, ...]:
 
 def objects_of(formula: Formula) -> frozenset[int]:
     """The object numbers (1-based) that the atoms of ``formula`` mention."""
-    return frozenset(a.index[-1] for a in atoms(formula) if a.index and isinstance(a.index[-1], int))
+    return frozenset(a.index[-1] for a in atoms(formula)
+                     if a.index and isinstance(a.index[-1], int))
 
 
 def partial(f: Formula, known: dict[Atom, bool]) -> Formula:
@@ -225,7 +226,7 @@ class StepSearch:
         return allowed
 
     def hand(self, i: int, share: tuple[int, ...]) -> StepResult:
-        """c_i(S): hand i delivers ``share`` alone; the other hand holds nothing and costs nothing."""
+        """c_i(S): hand i delivers ``share`` alone; the other hand holds nothing, costs nothing."""
         key = (i, share)
         if key not in self._hand:
             spec = restricted(self.spec, share, share)

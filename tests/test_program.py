@@ -7,7 +7,6 @@ grasps through :func:`mld.simulate` (which shares no code with the MILP) reprodu
 from __future__ import annotations
 
 import time
-
 from dataclasses import replace
 
 import numpy as np
