@@ -56,14 +56,11 @@ def object_speed_bound(model: Model, state: State) -> float:
 
 
 def add_bounds(prog, x: HorizonVariables, model: Model, state: State, reach: Reach,
-               pruning: bool, allowed: np.ndarray | None = None,
-               grasp: np.ndarray | None = None) -> None:
+               pruning: bool) -> None:
     """Initial state, variable bounds, reachable boxes and pruning (§IV-C.2).
 
     Pruning fixes η_ij(k) = 0 before hand i can reach object j and θ_j(k) = 0 before object j can
-    reach its goal; the reachable boxes bound every position, which also tightens every big-M.
-    ``allowed`` (2, N), from the skeleton search, fixes η_ij(k ≥ 1) = 0 where it is false;
-    ``grasp`` (T+1, 2, N) fixes every η (the search's repair of a composed plan)."""
+    reach its goal; the reachable boxes bound every position, which also tightens every big-M."""
     vo = object_speed_bound(model, state)
     bound(prog, x.hand_pos, reach.hand_lo, reach.hand_hi)
     bound(prog, x.hand_vel[1:], -model.v_max, model.v_max)
@@ -78,12 +75,8 @@ def add_bounds(prog, x: HorizonVariables, model: Model, state: State, reach: Rea
     if pruning:
         eta_ub = reach.grab_possible().astype(float)
         theta_ub = reach.goal_possible().astype(float)
-    if allowed is not None:
-        eta_ub = eta_ub * np.asarray(allowed, float)[None]
     eta_lb = np.zeros(x.eta.shape)
     eta_lb[0] = eta_ub[0] = state.grasp  # the grasp in force now is measured, not decided
-    if grasp is not None:
-        eta_lb = eta_ub = np.asarray(grasp, float)
     bound(prog, x.eta, eta_lb, eta_ub)
     bound(prog, x.theta, 0.0, theta_ub)
 
@@ -170,29 +163,26 @@ def add_goal_atoms(prog, x: HorizonVariables, model: Model, reach: Reach) -> Non
     rows.emit(prog, "goal atoms (7), (12)")
 
 
-def add_cost(prog, x: HorizonVariables, state_weight: float = 0.0,
-             hands: tuple[int, ...] = (0, 1), floor: np.ndarray | None = None) -> None:
+def add_cost(prog, x: HorizonVariables, state_weight: float = 0.0) -> list[np.ndarray]:
     """Eq. (17): J = Σ_k ‖u_1(k)‖₁ + ‖u_2(k)‖₁ via |u| ≥ ±u, plus an optional ‖v_hand‖₁ weight.
-    Only the ``hands`` listed are costed (one hand alone in the skeleton search's relaxations).
-    ``floor`` (2,): valid lower bounds on each hand's Σ_k ‖u_i(k)‖₁ that the skeleton search has
-    proven; as rows they lift the LP bound, which is otherwise near zero."""
+
+    Returns each hand's share of the linear cost over ``prog.decision_variables()``, so that the
+    skeleton search can cost one hand alone."""
     rows = Rows()
     rows.add([(1, x.force_abs), (-1, x.force)], lb=0)
     rows.add([(1, x.force_abs), (1, x.force)], lb=0)
-    if floor is not None:
-        for i in hands:
-            if floor[i] > 0:
-                rows.add_row([(1.0, int(v)) for v in x.force_abs[:, i].ravel()], lb=floor[i])
-    costed = np.zeros(N_HANDS)
-    costed[list(hands)] = 1.0
-    cost_vars = [x.force_abs.ravel()]
-    weights = [np.broadcast_to(costed[None, :, None], x.force_abs.shape).ravel()]
+    terms = [(x.force_abs, 1.0)]
     if state_weight > 0:
         speed = new_variables(prog, x.hand_vel.shape, "abs_v")
         rows.add([(1, speed), (-1, x.hand_vel)], lb=0)
         rows.add([(1, speed), (1, x.hand_vel)], lb=0)
-        cost_vars.append(speed.ravel())
-        weights.append(np.broadcast_to(state_weight * costed[None, :, None], speed.shape).ravel())
+        terms.append((speed, state_weight))
     rows.emit(prog, "cost (17) epigraph")
-    index = np.concatenate(cost_vars)
-    prog.AddLinearCost(np.concatenate(weights), 0.0, prog.decision_variables()[index])
+    shares = [np.zeros(prog.num_vars()) for _ in range(N_HANDS)]
+    for index, weight in terms:  # index (steps, hand, axis)
+        for i in range(N_HANDS):
+            shares[i][index[:, i].ravel()] = weight
+    total = sum(shares)
+    used = np.flatnonzero(total)
+    prog.AddLinearCost(total[used], 0.0, prog.decision_variables()[used])
+    return shares

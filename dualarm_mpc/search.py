@@ -56,8 +56,8 @@ from dualarm_mpc.ltl import (
     WeakNext,
     atoms,
 )
-from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Box, Model, State, simulate, violations
-from dualarm_mpc.planner import StepResult, solve_step, solver_options
+from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Box, State, simulate, violations
+from dualarm_mpc.planner import HorizonProgram, StepResult, solver_options
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification
@@ -204,18 +204,25 @@ class StepSearch:
     def __post_init__(self) -> None:
         self._hand: dict[tuple[int, tuple[int, ...]], StepResult] = {}
         self._alone: dict[int, StepResult] = {}
+        self._exact: set = set()  # keys of the relaxations solved to optimality
+        self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._deadline = time.perf_counter() + self.options.time_limit_s
-        self._model = Model.from_scenario(self.scenario, list(self.spec.objects))
+        self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
+                                       self.horizon)
+        self._model = self._program.model
         self._local = {j: n for n, j in enumerate(self.spec.objects)}
 
     # -- the subprograms ----------------------------------------------------------------------
 
     def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
-               start=None, floor=None) -> StepResult:
+               start=None, floor=None, exact: bool = True) -> StepResult:
+        """One subprogram; ``exact`` false stops at its first solution (a feasibility probe)."""
         remaining = max(self._deadline - time.perf_counter(), 1e-3)
         options = replace(self.options, time_limit_s=remaining)
-        res = solve_step(self.scenario, self.state, spec, self.horizon, options, start=start,
-                         allowed=allowed, hands=hands, grasp=grasp, floor=floor)
+        if not exact:
+            options = replace(options, mip_rel_gap=1.0)
+        res = self._program.solve(spec, options, start, allowed=allowed, hands=hands,
+                                  grasp=grasp, floor=floor)
         self.stats.solver_time_s += res.solve_time_s
         return res
 
@@ -225,38 +232,51 @@ class StepSearch:
             allowed[i, self._local[j]] = True
         return allowed
 
-    def hand(self, i: int, share: tuple[int, ...]) -> StepResult:
+    def _cached(self, cache: dict, key, exact: bool, solve) -> StepResult:
+        """A relaxation from ``cache``; a probe's answer stands for an exact one only when it
+        is "infeasible"."""
+        res = cache.get(key)
+        if res is None or (exact and key not in self._exact and res.status.has_solution):
+            res = cache[key] = solve(exact)
+            self.stats.relaxations += 1
+            if exact:
+                self._exact.add(key)
+        return res
+
+    def hand(self, i: int, share: tuple[int, ...], exact: bool = True) -> StepResult:
         """c_i(S): hand i delivers ``share`` alone; the other hand holds nothing, costs nothing."""
-        key = (i, share)
-        if key not in self._hand:
-            spec = restricted(self.spec, share, share)
+        def solve(exact: bool) -> StepResult:
             floor = np.zeros(N_HANDS)
             floor[i] = self._hand_bound(i, share)
-            self._hand[key] = self._solve(spec, self._mask((i, j) for j in share), hands=(i,),
-                                          floor=floor)
-            self.stats.relaxations += 1
-        return self._hand[key]
+            if np.isinf(floor[i]):  # a subset is infeasible: so is the share
+                return _INFEASIBLE
+            return self._solve(restricted(self.spec, share, share),
+                               self._mask((i, j) for j in share), hands=(i,), floor=floor,
+                               exact=exact)
 
-    def alone(self, j: int) -> StepResult:
+        return self._cached(self._hand, (i, share), exact, solve)
+
+    def alone(self, j: int, exact: bool = True) -> StepResult:
         """c(j): both hands deliver object j, every other object untouched."""
-        if j not in self._alone:
-            spec = restricted(self.spec, (j,), (j,))
-            self._alone[j] = self._solve(spec, self._mask((i, j) for i in range(N_HANDS)))
-            self.stats.relaxations += 1
-        return self._alone[j]
+        def solve(exact: bool) -> StepResult:
+            return self._solve(restricted(self.spec, (j,), (j,)),
+                               self._mask((i, j) for i in range(N_HANDS)), exact=exact)
+
+        return self._cached(self._alone, j, exact, solve)
 
     def _node_spec(self, node: Node) -> Specification:
         return replace(self.spec, targets=node.delivered, m_o=len(node.delivered),
                        task_form="counting")
 
-    def joint(self, node: Node, start=None) -> StepResult:
+    def joint(self, node: Node, start=None, exact: bool = True) -> StepResult:
         """The node's own program: the monolithic one restricted to the skeleton."""
         pairs = [(i, j) for j, h in zip(node.delivered, node.hands, strict=True)
                  for i in range(N_HANDS) if h in (i, BOTH)]
         pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
         floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
         self.stats.joint += 1
-        return self._solve(self._node_spec(node), self._mask(pairs), start=start, floor=floor)
+        return self._solve(self._node_spec(node), self._mask(pairs), start=start, floor=floor,
+                           exact=exact)
 
     # -- bounds -------------------------------------------------------------------------------
 
@@ -264,32 +284,37 @@ class StepSearch:
         """A lower bound on c_i(share): its own if solved, else the best of its solved subsets."""
         best = 0.0
         for (h, s), res in self._hand.items():
-            if h == i and set(s) <= set(share):
+            if h == i and set(s) <= set(share) and self._proven((h, s), res):
                 best = max(best, _bound(res))
         return best
 
+    def _proven(self, key, res: StepResult) -> bool:
+        return key in self._exact or res.status is Status.INFEASIBLE
+
     def bound(self, node: Node) -> float:
         split = sum(self._hand_bound(i, node.share(i)) for i in range(N_HANDS))
-        alone = [_bound(self._alone[j]) for j in node.delivered if j in self._alone]
+        alone = [_bound(self._alone[j]) for j in node.delivered
+                 if j in self._alone and self._proven(j, self._alone[j])]
         return max([split] + alone)
 
     def missing(self, node: Node) -> tuple | None:
         """The next relaxation the node's bound lacks, or None when it has them all."""
         for j in node.handed_over:
-            if j not in self._alone:
+            if not self._proven(j, self._alone.get(j, _UNKNOWN)):
                 return ("alone", j)
         for i in range(N_HANDS):
-            if (i, node.share(i)) not in self._hand:
+            key = (i, node.share(i))
+            if not self._proven(key, self._hand.get(key, _UNKNOWN)):
                 return ("hand", i, node.share(i))
         return None
 
     # -- putting the hands together -----------------------------------------------------------
 
-    def compose(self, node: Node) -> StepResult | None:
+    def compose(self, node: Node, exact: bool = True) -> StepResult | None:
         """The joint plan made of each hand's own solution, if the model and the whole
         specification (task, every rule, eq. 16) hold on its re-simulated trace; else the best
         joint plan with the same grasps (a small MILP over θ alone), or None."""
-        parts = [self.hand(i, node.share(i)) for i in range(N_HANDS)]
+        parts = [self.hand(i, node.share(i), exact) for i in range(N_HANDS)]
         force = np.stack([parts[i].trajectory.force[:, i] for i in range(N_HANDS)], axis=1)
         grasp = np.stack([parts[i].trajectory.grasp[:, i] for i in range(N_HANDS)], axis=1)
         local_state = self.state.select(list(self.spec.objects))
@@ -299,7 +324,7 @@ class StepSearch:
                       else Status.FEASIBLE)
             return StepResult(status, self.horizon, traj, float(np.abs(force).sum()), 0.0, 0.0,
                               0.0, 0, None)
-        repair = self._solve(self._node_spec(node), self._mask([]), grasp=grasp)
+        repair = self._solve(self._node_spec(node), self._mask([]), grasp=grasp, exact=exact)
         return repair if repair.status.has_solution else None
 
     def _feasible(self, traj) -> bool:
@@ -327,8 +352,9 @@ class StepSearch:
 
     def _needs_handover(self, j: int) -> bool:
         """Neither hand can deliver object j alone, both together can."""
-        alone = [self.hand(i, (j,)).status is Status.INFEASIBLE for i in range(N_HANDS)]
-        return all(alone) and self.alone(j).status is not Status.INFEASIBLE
+        alone = [self.hand(i, (j,), exact=False).status is Status.INFEASIBLE
+                 for i in range(N_HANDS)]
+        return all(alone) and self.alone(j, exact=False).status is not Status.INFEASIBLE
 
     def nodes(self) -> list[Node]:
         """Every skeleton (D, h). Hand-over labels: with ``always`` for every object (then the
@@ -345,6 +371,33 @@ class StepSearch:
             labels = [(0, 1, BOTH) if j in both else (0, 1) for j in delivered]
             out += [Node(delivered, hands, free) for hands in itertools.product(*labels)]
         return out
+
+    def feasible(self) -> bool:
+        """Whether the horizon admits a plan, decided with feasibility probes (first solutions,
+        no optimality): a node is feasible when its relaxations are and its hands' plans fit
+        together or its joint program has a solution. Infeasible relaxations found here serve
+        the optimization too, and a plan found is its first incumbent."""
+        for node in self.nodes():
+            if not self._relaxations_feasible(node):
+                continue
+            witness = None if node.handed_over or node.free else self.compose(node, exact=False)
+            if witness is None:
+                witness = self.joint(node, exact=False)
+            if witness.status.has_solution:
+                self._witness = witness
+                return True
+            if time.perf_counter() > self._deadline:
+                self.stats.timed_out = True
+                return True  # undecided: the optimization reports the time limit
+        return False
+
+    def _relaxations_feasible(self, node: Node) -> bool:
+        """Probe the node's relaxations in turn; stop at the first infeasible one."""
+        for j in node.handed_over:
+            if not self.alone(j, exact=False).status.has_solution:
+                return False
+        return all(self.hand(i, node.share(i), exact=False).status.has_solution
+                   for i in range(N_HANDS))
 
     def evaluate(self, node: Node, incumbent: float) -> StepResult:
         """The node's optimum: composed from both hands' solutions when they fit together
@@ -371,7 +424,7 @@ class StepSearch:
         counter = itertools.count()
         heap = [(0.0, next(counter), n) for n in self.nodes()]
         heapq.heapify(heap)
-        best: StepResult | None = None
+        best: StepResult | None = self._witness
         undecided = np.inf  # the least bound of a node the solver could not close
         while heap:
             key, _, node = heapq.heappop(heap)
@@ -417,6 +470,10 @@ class StepSearch:
                        binaries=binaries, bound=lower)
 
 
+_UNKNOWN = StepResult(Status.ERROR, 0, None, np.inf, 0.0, 0.0, np.inf, 0, None)
+_INFEASIBLE = replace(_UNKNOWN, status=Status.INFEASIBLE, bound=np.inf)
+
+
 def _bound(res: StepResult) -> float:
     """A proven lower bound of a subprogram: +inf when it is infeasible."""
     if res.status is Status.INFEASIBLE:
@@ -430,4 +487,11 @@ def search_step(scenario: Scenario, state: State, spec: Specification, horizon: 
                 options: SolveOptions | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`planner.solve_step`."""
     options = options or solver_options(scenario)
-    return StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover).run()
+    search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover)
+    t0 = time.perf_counter()
+    if not search.feasible():
+        return StepResult(Status.INFEASIBLE, horizon, None, np.inf, time.perf_counter() - t0,
+                          0.0, np.inf, 3 * (horizon + 1) * len(spec.objects), None,
+                          bound=np.inf)
+    res = search.run()
+    return replace(res, solve_time_s=time.perf_counter() - t0)

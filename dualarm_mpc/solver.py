@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -65,6 +65,27 @@ class StandardForm:
     col_lb: np.ndarray
     col_ub: np.ndarray
     integer: np.ndarray  # bool mask
+
+    def extended(self, other: StandardForm) -> StandardForm:
+        """A copy with the rows and the new columns of ``other``, a form whose first columns
+        are this one's (a specification encoded over the same variables)."""
+        n, m = len(self.c), len(other.c)
+        A = sp.vstack([sp.hstack([self.A, sp.csr_matrix((self.A.shape[0], m - n))]), other.A],
+                      format="csr")
+        return StandardForm(
+            np.concatenate([self.c, other.c[n:]]), self.c0 + other.c0, A,
+            np.concatenate([self.row_lb, other.row_lb]),
+            np.concatenate([self.row_ub, other.row_ub]),
+            np.concatenate([np.maximum(self.col_lb, other.col_lb[:n]), other.col_lb[n:]]),
+            np.concatenate([np.minimum(self.col_ub, other.col_ub[:n]), other.col_ub[n:]]),
+            np.concatenate([self.integer | other.integer[:n], other.integer[n:]]))
+
+    def with_row(self, index: np.ndarray, lb: float = -np.inf, ub: float = np.inf) -> StandardForm:
+        """A copy with the row ``lb ≤ Σ_i x[index_i] ≤ ub`` added."""
+        row = sp.csr_matrix((np.ones(len(index)), (np.zeros(len(index), int), index)),
+                            shape=(1, len(self.c)))
+        return replace(self, A=sp.vstack([self.A, row], format="csr"),
+                       row_lb=np.append(self.row_lb, lb), row_ub=np.append(self.row_ub, ub))
 
 
 def standard_form(prog: MathematicalProgram) -> StandardForm:
