@@ -66,6 +66,7 @@ class SolverOptions:
     # Skeleton nodes where both hands may hold one object: "auto" only for objects that neither
     # hand can deliver alone, "always" (exact against the monolithic MILP), "never".
     handover: str = "auto"
+    workers: int = 2  # threads solving the skeleton search's independent programs at once
 
 
 @dataclass
@@ -377,7 +378,7 @@ def validate(s: Scenario) -> None:
         raise ScenarioError("solver.time_limit_s: must be positive")
     if s.solver.mip_rel_gap < 0:
         raise ScenarioError(f"solver.mip_rel_gap: must be >= 0, got {s.solver.mip_rel_gap}")
-    for key in ("max_horizon", "threads"):
+    for key in ("max_horizon", "threads", "workers"):
         if getattr(s.solver, key) < 1:
             raise ScenarioError(f"solver.{key}: must be >= 1, got {getattr(s.solver, key)}")
     for n, text in enumerate(s.rules):

@@ -31,13 +31,16 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import threading
 import time
 from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
+from dualarm_mpc.horizon import HorizonProgram, StepResult, solver_options
 from dualarm_mpc.ltl import (
     FALSE,
     TRUE,
@@ -57,7 +60,6 @@ from dualarm_mpc.ltl import (
     atoms,
 )
 from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Box, State, simulate, violations
-from dualarm_mpc.planner import HorizonProgram, StepResult, solver_options
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification
@@ -199,14 +201,16 @@ class StepSearch:
     horizon: int
     options: SolveOptions
     handover: str = "auto"  # "auto", "always" or "never": see nodes()
+    pool: ThreadPoolExecutor | None = None  # workers for independent relaxations
     stats: SearchStats = field(default_factory=SearchStats)
 
     def __post_init__(self) -> None:
-        self._hand: dict[tuple[int, tuple[int, ...]], StepResult] = {}
-        self._alone: dict[int, StepResult] = {}
+        self._relax: dict[tuple, StepResult] = {}
+        self._lock = threading.Lock()
         self._exact: set = set()  # keys of the relaxations solved to optimality
         self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._deadline = time.perf_counter() + self.options.time_limit_s
+        self._workers = self.pool._max_workers if self.pool is not None else 1
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
                                        self.horizon)
         self._model = self._program.model
@@ -223,7 +227,8 @@ class StepSearch:
             options = replace(options, mip_rel_gap=1.0)
         res = self._program.solve(spec, options, start, allowed=allowed, hands=hands,
                                   grasp=grasp, floor=floor)
-        self.stats.solver_time_s += res.solve_time_s
+        with self._lock:
+            self.stats.solver_time_s += res.solve_time_s
         return res
 
     def _mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
@@ -232,37 +237,50 @@ class StepSearch:
             allowed[i, self._local[j]] = True
         return allowed
 
-    def _cached(self, cache: dict, key, exact: bool, solve) -> StepResult:
-        """A relaxation from ``cache``; a probe's answer stands for an exact one only when it
-        is "infeasible"."""
-        res = cache.get(key)
-        if res is None or (exact and key not in self._exact and res.status.has_solution):
-            res = cache[key] = solve(exact)
+    # A relaxation is named by a key: ("hand", i, S) for c_i(S), ("alone", j) for c(j).
+
+    def _compute(self, key: tuple, exact: bool) -> StepResult:
+        if key[0] == "alone":
+            j = key[1]
+            return self._solve(restricted(self.spec, (j,), (j,)),
+                               self._mask((i, j) for i in range(N_HANDS)), exact=exact)
+        _, i, share = key
+        floor = np.zeros(N_HANDS)
+        floor[i] = self._hand_bound(i, share)
+        if np.isinf(floor[i]):  # a subset is infeasible: so is the share
+            return _INFEASIBLE
+        return self._solve(restricted(self.spec, share, share), self._mask((i, j) for j in share),
+                           hands=(i,), floor=floor, exact=exact)
+
+    def _wanted(self, key: tuple, exact: bool) -> bool:
+        """Not known yet: a probe's answer stands for an exact one only when "infeasible"."""
+        res = self._relax.get(key)
+        return res is None or (exact and key not in self._exact and res.status.has_solution)
+
+    def fetch(self, requests: Iterable[tuple[tuple, bool]]) -> None:
+        """Solve the relaxations asked for and not known yet, on every worker at once."""
+        todo = list(dict.fromkeys((k, e) for k, e in requests if self._wanted(k, e)))
+        if len(todo) > 1 and self.pool is not None:
+            results = list(self.pool.map(lambda ke: self._compute(*ke), todo))
+        else:
+            results = [self._compute(k, e) for k, e in todo]
+        for (key, exact), res in zip(todo, results, strict=True):
+            self._relax[key] = res
             self.stats.relaxations += 1
             if exact:
                 self._exact.add(key)
-        return res
+
+    def relaxation(self, key: tuple, exact: bool = True) -> StepResult:
+        self.fetch([(key, exact)])
+        return self._relax[key]
 
     def hand(self, i: int, share: tuple[int, ...], exact: bool = True) -> StepResult:
         """c_i(S): hand i delivers ``share`` alone; the other hand holds nothing, costs nothing."""
-        def solve(exact: bool) -> StepResult:
-            floor = np.zeros(N_HANDS)
-            floor[i] = self._hand_bound(i, share)
-            if np.isinf(floor[i]):  # a subset is infeasible: so is the share
-                return _INFEASIBLE
-            return self._solve(restricted(self.spec, share, share),
-                               self._mask((i, j) for j in share), hands=(i,), floor=floor,
-                               exact=exact)
-
-        return self._cached(self._hand, (i, share), exact, solve)
+        return self.relaxation(("hand", i, share), exact)
 
     def alone(self, j: int, exact: bool = True) -> StepResult:
         """c(j): both hands deliver object j, every other object untouched."""
-        def solve(exact: bool) -> StepResult:
-            return self._solve(restricted(self.spec, (j,), (j,)),
-                               self._mask((i, j) for i in range(N_HANDS)), exact=exact)
-
-        return self._cached(self._alone, j, exact, solve)
+        return self.relaxation(("alone", j), exact)
 
     def _node_spec(self, node: Node) -> Specification:
         return replace(self.spec, targets=node.delivered, m_o=len(node.delivered),
@@ -283,8 +301,9 @@ class StepSearch:
     def _hand_bound(self, i: int, share: tuple[int, ...]) -> float:
         """A lower bound on c_i(share): its own if solved, else the best of its solved subsets."""
         best = 0.0
-        for (h, s), res in self._hand.items():
-            if h == i and set(s) <= set(share) and self._proven((h, s), res):
+        for key, res in list(self._relax.items()):
+            if key[0] == "hand" and key[1] == i and set(key[2]) <= set(share) \
+                    and self._proven(key, res):
                 best = max(best, _bound(res))
         return best
 
@@ -293,20 +312,15 @@ class StepSearch:
 
     def bound(self, node: Node) -> float:
         split = sum(self._hand_bound(i, node.share(i)) for i in range(N_HANDS))
-        alone = [_bound(self._alone[j]) for j in node.delivered
-                 if j in self._alone and self._proven(j, self._alone[j])]
+        alone = [_bound(self._relax[("alone", j)]) for j in node.delivered
+                 if self._proven(("alone", j), self._relax.get(("alone", j), _UNKNOWN))]
         return max([split] + alone)
 
-    def missing(self, node: Node) -> tuple | None:
-        """The next relaxation the node's bound lacks, or None when it has them all."""
-        for j in node.handed_over:
-            if not self._proven(j, self._alone.get(j, _UNKNOWN)):
-                return ("alone", j)
-        for i in range(N_HANDS):
-            key = (i, node.share(i))
-            if not self._proven(key, self._hand.get(key, _UNKNOWN)):
-                return ("hand", i, node.share(i))
-        return None
+    def missing(self, node: Node) -> list[tuple]:
+        """The relaxations the node's bound still lacks."""
+        keys = [("alone", j) for j in node.handed_over]
+        keys += [("hand", i, node.share(i)) for i in range(N_HANDS)]
+        return [k for k in keys if not self._proven(k, self._relax.get(k, _UNKNOWN))]
 
     # -- putting the hands together -----------------------------------------------------------
 
@@ -350,20 +364,25 @@ class StepSearch:
 
     # -- best-first ---------------------------------------------------------------------------
 
-    def _needs_handover(self, j: int) -> bool:
-        """Neither hand can deliver object j alone, both together can."""
-        alone = [self.hand(i, (j,), exact=False).status is Status.INFEASIBLE
-                 for i in range(N_HANDS)]
-        return all(alone) and self.alone(j, exact=False).status is not Status.INFEASIBLE
+    def handed_over_objects(self) -> set[int]:
+        """The objects with hand-over labels: every one with ``always``; with ``auto`` those
+        that neither hand can deliver alone but both together can; none with ``never``."""
+        if self.handover != "auto":
+            return set(self.spec.objects) if self.handover == "always" else set()
+        singles = [("hand", i, (j,)) for j in self.spec.objects for i in range(N_HANDS)]
+        self.fetch((k, False) for k in singles)
+        alone = [j for j in self.spec.objects
+                 if all(self._relax[("hand", i, (j,))].status is Status.INFEASIBLE
+                        for i in range(N_HANDS))]
+        self.fetch((("alone", j), False) for j in alone)
+        return {j for j in alone if self._relax[("alone", j)].status is not Status.INFEASIBLE}
 
-    def nodes(self) -> list[Node]:
-        """Every skeleton (D, h). Hand-over labels: with ``always`` for every object (then the
-        search is exact against the monolithic MILP), with ``auto`` for the objects no single
-        hand can deliver, with ``never`` for none (then it is exact over the plans in which
-        each object is held by one hand at most)."""
-        both = {j for j in self.spec.objects
-                if self.handover == "always"
-                or (self.handover == "auto" and self._needs_handover(j))}
+    def nodes(self, handed_over: bool = True) -> list[Node]:
+        """Every skeleton (D, h); only those with one hand per object unless ``handed_over``
+        (:meth:`handed_over_objects` says which objects get the label BOTH). Without hand-over
+        labels for every object, the search is exact over the plans in which each object is
+        held by one hand at most; with them (``always``), against the monolithic MILP."""
+        both = self.handed_over_objects() if handed_over else set()
         out = []
         for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
             quiet = untouchable(self.spec, self.state, delivered)
@@ -377,7 +396,12 @@ class StepSearch:
         no optimality): a node is feasible when its relaxations are and its hands' plans fit
         together or its joint program has a solution. Infeasible relaxations found here serve
         the optimization too, and a plan found is its first incumbent."""
-        for node in self.nodes():
+        single = self.nodes(handed_over=False)
+        nodes = itertools.chain(single, (n for n in self.nodes() if n.handed_over))
+        for n, node in enumerate(nodes):
+            if n == 1:  # past the first guess, most singles will be needed: all at once
+                self.fetch((("hand", i, (j,)), False)
+                           for j in self.spec.objects for i in range(N_HANDS))
             if not self._relaxations_feasible(node):
                 continue
             witness = None if node.handed_over or node.free else self.compose(node, exact=False)
@@ -392,12 +416,10 @@ class StepSearch:
         return False
 
     def _relaxations_feasible(self, node: Node) -> bool:
-        """Probe the node's relaxations in turn; stop at the first infeasible one."""
-        for j in node.handed_over:
-            if not self.alone(j, exact=False).status.has_solution:
-                return False
-        return all(self.hand(i, node.share(i), exact=False).status.has_solution
-                   for i in range(N_HANDS))
+        keys = [("alone", j) for j in node.handed_over]
+        keys += [("hand", i, node.share(i)) for i in range(N_HANDS)]
+        self.fetch((k, False) for k in keys)
+        return all(self._relax[k].status.has_solution for k in keys)
 
     def evaluate(self, node: Node, incumbent: float) -> StepResult:
         """The node's optimum: composed from both hands' solutions when they fit together
@@ -442,8 +464,11 @@ class StepSearch:
                 self.stats.timed_out = True
                 break
             need = self.missing(node)
-            if need is not None:
-                self.alone(need[1]) if need[0] == "alone" else self.hand(need[1], need[2])
+            if need:
+                # The next nodes' needs too, one per worker: they are likely to come next.
+                for _, _, other in heapq.nsmallest(self._workers, heap):
+                    need += self.missing(other)
+                self.fetch((k, True) for k in need[: max(self._workers, 1)])
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
             self.stats.nodes += 1
@@ -483,15 +508,31 @@ def _bound(res: StepResult) -> float:
     return max(res.bound, 0.0) if np.isfinite(res.bound) else 0.0
 
 
+def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, horizon: int,
+                     options: SolveOptions | None = None) -> Status:
+    """Whether ``horizon`` admits a plan (the feasibility pass alone): ``FEASIBLE``,
+    ``INFEASIBLE``, or ``TIME_LIMIT`` when the time limit left it undecided."""
+    options = options or solver_options(scenario)
+    with ThreadPoolExecutor(scenario.solver.workers) as pool:
+        search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover,
+                            pool)
+        found = search.feasible()
+    if search.stats.timed_out:
+        return Status.TIME_LIMIT
+    return Status.FEASIBLE if found else Status.INFEASIBLE
+
+
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None) -> StepResult:
-    """The skeleton search of one horizon; the same optimum as :func:`planner.solve_step`."""
+    """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`."""
     options = options or solver_options(scenario)
-    search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover)
     t0 = time.perf_counter()
-    if not search.feasible():
-        return StepResult(Status.INFEASIBLE, horizon, None, np.inf, time.perf_counter() - t0,
-                          0.0, np.inf, 3 * (horizon + 1) * len(spec.objects), None,
-                          bound=np.inf)
-    res = search.run()
+    with ThreadPoolExecutor(scenario.solver.workers) as pool:
+        search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover,
+                            pool)
+        if not search.feasible():
+            return StepResult(Status.INFEASIBLE, horizon, None, np.inf,
+                              time.perf_counter() - t0, 0.0, np.inf,
+                              3 * (horizon + 1) * len(spec.objects), None, bound=np.inf)
+        res = search.run()
     return replace(res, solve_time_s=time.perf_counter() - t0)

@@ -12,12 +12,23 @@ from __future__ import annotations
 import itertools
 from dataclasses import dataclass
 
+from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.ltl import (
     Always,
+    And,
+    Atom,
     Eventually,
     Formula,
+    Next,
+    Not,
+    Or,
+    Release,
+    Until,
+    WeakNext,
+    atoms,
     conj,
     disj,
+    nnf,
     parse,
     placeholders,
     substitute,
@@ -88,6 +99,90 @@ class Specification:
     def formula(self) -> Formula:
         """The whole specification as one formula (eq. 21)."""
         return conj([self.task()] + [f for _, f in self.rules])
+
+    def monotone_in_horizon(self) -> bool:
+        """Whether a plan of horizon T stays one of horizon T + 1 when the robot idles one more
+        step (every plan ends at rest, so the model allows it): then feasibility is monotone in
+        T and the optimal cost never grows with it, so one check at the largest horizon
+        decides whether any horizon has a plan. True when every formula survives repeating its
+        trace's last state (:func:`survives_idling`); the paper's rules do."""
+        return all(survives_idling(f) for f in self.events + [f for _, f in self.rules])
+
+
+MAX_IDLING_TRACES = 20_000  # short traces enumerated per rule instance; beyond, "not known"
+
+
+def survives_idling(formula: Formula) -> bool:
+    """Whether ``w ⊨ φ`` implies ``w·w_T ⊨ φ`` for every finite trace w (w_T its last state).
+
+    Repeating the last state changes nothing at steps that cannot see the end; only X and WX
+    (WX a is vacuously true at T, a at T + 1 afterwards) can change a value near it. Every
+    argument of G, F, U, R (and the root) is therefore checked on every short trace u — as long
+    as its nesting of X/WX plus one, over the states of its atoms that eqs. (14)–(15) allow —
+    against u with its last state repeated; longer traces follow by induction over those
+    arguments (G, F, U, R only grow with the added step when their arguments do). Conjuncts
+    (the instances of an expanded rule) are checked one by one; a formula too large to
+    enumerate is "not known" (False)."""
+    f = nnf(formula)
+    if isinstance(f, And):
+        return all(survives_idling(a) for a in f.args)
+    states = list(_grasp_states(sorted(atoms(f), key=str)))
+    for g in _temporal_arguments(f) | {f}:
+        depth = _next_depth(g)
+        if sum(len(states) ** n for n in range(1, depth + 2)) > MAX_IDLING_TRACES:
+            return False
+        for n in range(1, depth + 2):
+            for trace in itertools.product(states, repeat=n):
+                u = {a: [st[a] for st in trace] for a in states[0]} if states[0] else {}
+                longer = {a: v + v[-1:] for a, v in u.items()}
+                if evaluate(g, u, n - 1) and not evaluate(g, longer, n):
+                    return False
+    return True
+
+
+def _next_depth(f: Formula) -> int:
+    """The deepest nesting of X and WX in ``f``."""
+    if isinstance(f, Next | WeakNext):
+        return 1 + _next_depth(f.arg)
+    if isinstance(f, Always | Eventually | Not):
+        return _next_depth(f.arg)
+    if isinstance(f, Until | Release):
+        return max(_next_depth(f.lhs), _next_depth(f.rhs))
+    if isinstance(f, And | Or):
+        return max(_next_depth(a) for a in f.args)
+    return 0
+
+
+def _temporal_arguments(f: Formula) -> set[Formula]:
+    out: set[Formula] = set()
+    stack = [f]
+    while stack:
+        g = stack.pop()
+        if isinstance(g, Always | Eventually):
+            out.add(g.arg)
+            stack.append(g.arg)
+        elif isinstance(g, Next | WeakNext):
+            stack.append(g.arg)
+        elif isinstance(g, Until | Release):
+            out |= {g.lhs, g.rhs}
+            stack += [g.lhs, g.rhs]
+        elif isinstance(g, And | Or):
+            stack += list(g.args)
+        elif isinstance(g, Not):
+            stack.append(g.arg)
+    return out
+
+
+def _grasp_states(found: list[Atom]):
+    """Every truth assignment of ``found`` in which no object is held by two hands (14) and no
+    hand holds two objects (15)."""
+    for values in itertools.product((False, True), repeat=len(found)):
+        sigma = dict(zip(found, values, strict=True))
+        held = [a.index for a, v in sigma.items() if v and a.name == "eta" and len(a.index) == 2]
+        hands = [i for i, _ in held]
+        objects = [j for _, j in held]
+        if len(set(hands)) == len(hands) and len(set(objects)) == len(objects):
+            yield sigma
 
 
 def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str, Formula]]:

@@ -19,6 +19,7 @@ from strategies import formulas, traces
 from dualarm_mpc import planner
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.evaluate import evaluate
+from dualarm_mpc.horizon import build_program, solve_step
 from dualarm_mpc.linear import Rows, bound, new_variables
 from dualarm_mpc.ltl import Atom, F, Formula, G, Not, atoms, nnf, parse
 from dualarm_mpc.mld import State
@@ -248,7 +249,7 @@ def _one_object_scenario(**overrides) -> Scenario:
 def _build(scenario: Scenario, horizon: int = 4):
     state = State.initial(scenario)
     spec = specification(scenario, [0])
-    return planner.build_program(scenario, state, spec, horizon)
+    return build_program(scenario, state, spec, horizon)
 
 
 def test_negated_goal_atom_in_a_rule_is_rejected_naming_it() -> None:
@@ -296,7 +297,7 @@ def test_rule_on_an_object_outside_the_step_uses_its_constant_value() -> None:
     ):
         s = apply_overrides(scenario, {"rules": rules})
         spec = specification(s, [0])
-        res = planner.solve_step(s, state, spec, 6)
+        res = solve_step(s, state, spec, 6)
         assert res.status.has_solution is feasible, rules
 
 

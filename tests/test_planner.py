@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from dualarm_mpc import planner
+from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.mld import Box, State
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.planner import PlanningError, plan
@@ -135,7 +136,7 @@ def test_horizon_is_the_smallest_feasible_one() -> None:
     res, _ = planner.plan_step(scenario, state, spec)
     T = res.horizon
     assert planner.predict_horizon(scenario, state, spec) <= T
-    assert not planner.solve_step(scenario, state, spec, T - 1).status.has_solution
+    assert not solve_step(scenario, state, spec, T - 1).status.has_solution
 
 
 def test_select_objects_prefers_the_cheapest() -> None:

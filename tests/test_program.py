@@ -14,6 +14,7 @@ import pytest
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc import planner
+from dualarm_mpc.horizon import build_program, solve_step
 from dualarm_mpc.mld import Model, State, simulate, violations
 from dualarm_mpc.scenario import Scenario, apply_overrides, load_scenario
 from dualarm_mpc.solver import SolveOptions, Status, solve, standard_form
@@ -106,7 +107,7 @@ def test_a_throw_releases_at_speed_and_lands_beyond_the_reach() -> None:
 def _matrix(scenario: Scenario, T: int = 6):
     state = State.initial(scenario)
     spec = specification(scenario, [0, 1])
-    prog, x, model, local = planner.build_program(scenario, state, spec, T)
+    prog, x, model, local = build_program(scenario, state, spec, T)
     return prog, standard_form(prog), model, local
 
 
@@ -139,7 +140,7 @@ def test_constraints_are_added_in_blocks() -> None:
             scenario = thrown()
             state = State.initial(scenario)
             spec = specification(scenario, list(range(n)))
-            prog, *_ = planner.build_program(scenario, state, spec, T)
+            prog, *_ = build_program(scenario, state, spec, T)
             counts.add(len(prog.GetAllConstraints()))
     assert len(counts) == 1 and counts.pop() <= 30
 
@@ -149,7 +150,7 @@ def test_building_a_six_object_program_is_fast() -> None:
     state = State.initial(scenario)
     spec = specification(scenario, [0, 3, 5, 6, 8, 9])
     t0 = time.perf_counter()
-    prog, *_ = planner.build_program(scenario, state, spec, 10)
+    prog, *_ = build_program(scenario, state, spec, 10)
     f = standard_form(prog)
     assert time.perf_counter() - t0 < 1.0
     assert f.A.shape[0] > 1000
@@ -167,8 +168,8 @@ def test_pruning_does_not_change_feasibility_or_optimal_cost(case: str, objects)
     for T in range(1, 11):
         results = {}
         for pruning in (True, False):
-            results[pruning] = planner.solve_step(scenario, state, spec, T, pruning=pruning)
-            prog, *_ = planner.build_program(scenario, state, spec, T, pruning=pruning)
+            results[pruning] = solve_step(scenario, state, spec, T, pruning=pruning)
+            prog, *_ = build_program(scenario, state, spec, T, pruning=pruning)
             f = standard_form(prog)
             fixed[pruning] = int(((f.col_ub == 0) & f.integer).sum())
         on, off = results[True], results[False]

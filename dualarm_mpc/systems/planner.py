@@ -25,16 +25,10 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
+from dualarm_mpc.horizon import StepResult, solve_step, solver_options
 from dualarm_mpc.mld import Box, Model, State, reachability
 from dualarm_mpc.plan import TimedTrajectory
-from dualarm_mpc.planner import (
-    StepResult,
-    embed_step,
-    predict_horizon,
-    select_objects,
-    solve_step,
-    solver_options,
-)
+from dualarm_mpc.planner import embed_step, predict_horizon, select_objects
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import Status
 from dualarm_mpc.spec import rule_formulas, specification
