@@ -25,6 +25,7 @@ from dualarm_mpc.spec import Specification, rule_formulas, specification
 log = logging.getLogger(__name__)
 
 REST_TOL = 1e-6  # m/s: "at rest" in the model's own units
+CHECK_CAP_AFTER = 3  # horizons without a plan before the largest one is checked (plan_step)
 
 
 class PlanningError(RuntimeError):
@@ -82,16 +83,18 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     (wall time, everything included).
 
     With the skeleton search and a specification whose feasibility is monotone in T
-    (:meth:`Specification.monotone_in_horizon`), the largest horizon is checked first: if it
-    has no plan, none has, and the conflict is diagnosed at once instead of after every
-    horizon."""
+    (:meth:`Specification.monotone_in_horizon`), once ``CHECK_CAP_AFTER`` horizons had no
+    plan the largest one is checked: if it has none, no horizon has, and the conflict is
+    diagnosed at once instead of after every horizon. (Not earlier: a plan at the largest
+    horizon is slow to find, and most steps need no more than two or three horizons.)"""
     t0 = time.perf_counter()
     cap = scenario.solver.max_horizon
     last = None
-    if scenario.solver.search == "skeleton" and spec.monotone_in_horizon():
-        if horizon_has_plan(scenario, state, spec, cap, options) is Status.INFEASIBLE:
+    monotone = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
+    for n, T in enumerate(range(predict_horizon(scenario, state, spec), cap + 1)):
+        if monotone and n == CHECK_CAP_AFTER and T < cap and \
+                horizon_has_plan(scenario, state, spec, cap, options) is Status.INFEASIBLE:
             raise PlanningError(diagnose(scenario, state, spec, None, options))
-    for T in range(predict_horizon(scenario, state, spec), cap + 1):
         res = solve_horizon(scenario, state, spec, T, options)
         if on_try:
             on_try(res)
