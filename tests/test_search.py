@@ -1,0 +1,200 @@
+"""Tests for dualarm_mpc.search (the skeleton search) and the monotonicity check in spec.py.
+
+The search must return the monolithic MILP's optimum of the same horizon: checked on random
+small steps (seeded: states, both rules, a user rule, both delivery modes) against
+:func:`horizon.solve_step`, with the plan replayed through the model and its specification
+evaluated directly (``evaluate.py`` shares no code with either program).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from strategies import formulas, traces
+
+from dualarm_mpc.evaluate import evaluate
+from dualarm_mpc.horizon import solve_step
+from dualarm_mpc.ltl import FALSE, TRUE, Atom, parse
+from dualarm_mpc.mld import POSITION_TOL, Model, State, simulate, violations
+from dualarm_mpc.scenario import Scenario, apply_overrides
+from dualarm_mpc.search import StepSearch, partial, search_step, untouchable
+from dualarm_mpc.solver import SolveOptions, Status
+from dualarm_mpc.spec import RULE_TEXT, expand, specification, survives_idling
+
+# --- partial evaluation and untouched objects ---------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "known", "expected"),
+    [
+        ("G(eta[1,2] & WX !eta[1,2] -> WX theta[2])", {"eta[1,2]": False}, TRUE),
+        ("G(eta[1,3] -> WX !eta[1,2])", {"eta[1,2]": False}, TRUE),
+        ("F eta[1,2]", {"eta[1,2]": False}, FALSE),
+        ("X true", {}, parse("X true")),  # strong next is false at the last step
+        ("WX false", {}, parse("WX false")),
+        ("theta[1] U true", {}, TRUE),
+    ],
+)
+def test_partial_evaluation_folds_only_what_holds_at_every_step(text, known, expected) -> None:
+    atoms = {parse(k): v for k, v in known.items()}
+    assert partial(parse(text), atoms) == expected
+
+
+def scene(rule: int = 2, rules: tuple[str, ...] = (), **overrides) -> Scenario:
+    data = {
+        "name": "search",
+        "goals": {"red": [0.2, 0.4, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]},
+        "objects": [
+            {"name": "object1", "position": [0.1, 0.1], "goal": "red"},
+            {"name": "object2", "position": [-0.1, 0.2], "goal": "blue"},
+            {"name": "object3", "position": [0.0, 0.0], "goal": "red"},
+        ],
+        "rule": rule,
+        "rules": list(rules),
+        "m_o": 1,
+        "n_o": 3,
+        "solver": {"time_limit_s": 30.0, "mip_rel_gap": 1e-7},
+    }
+    return apply_overrides(Scenario(), {**data, **overrides})
+
+
+@pytest.mark.parametrize("rule", [1, 2])
+def test_the_paper_rules_let_undelivered_objects_stay_untouched(rule: int) -> None:
+    s = scene(rule)
+    state = State.initial(s)
+    spec = specification(s, [0, 1, 2])
+    assert untouchable(spec, state, [0]) == {1, 2}
+
+
+def test_a_rule_that_needs_an_object_touched_keeps_it_free() -> None:
+    s = scene(2, rules=("F eta[1,3]",))
+    state = State.initial(s)
+    spec = specification(s, [0, 1, 2])
+    assert untouchable(spec, state, [0]) == frozenset()
+
+
+# --- monotone in the horizon ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", list(RULE_TEXT))
+def test_the_paper_rules_survive_idling(name: str) -> None:
+    assert survives_idling(expand(parse(RULE_TEXT[name]), [1, 2, 3]))
+
+
+@pytest.mark.parametrize(
+    "text", ["G(eta[1,2] -> WX !eta[1,2])", "G WX theta[1]", "G(eta[1,1] -> WX G theta[1])"]
+)
+def test_rules_broken_by_one_more_idle_step_are_found(text: str) -> None:
+    assert not survives_idling(parse(text))
+
+
+# Atoms of different hands and objects: every state of them is one eqs. (14)-(15) allow.
+ATOMS = [Atom("eta", (1, 1)), Atom("eta", (2, 2)), Atom("theta", (1,))]
+
+
+@settings(max_examples=300, deadline=None)
+@given(formulas(ATOMS, max_leaves=6), st.integers(0, 3).flatmap(lambda T: traces(ATOMS, T)))
+def test_survives_idling_is_sound(formula, trace) -> None:
+    """Whenever the check says yes, repeating the last state never falsifies the formula."""
+    if not survives_idling(formula):
+        return
+    T = len(trace[ATOMS[0]]) - 1
+    if not evaluate(formula, trace, T):
+        return
+    longer = {a: v + v[-1:] for a, v in trace.items()}
+    assert evaluate(formula, longer, T + 1), (formula, trace)
+
+
+# --- the search returns the monolithic optimum --------------------------------------------------
+
+
+def random_scene(seed: int) -> Scenario:
+    """Three objects at random in the cluster, one of four rule sets, both deliveries."""
+    rng = np.random.default_rng(seed)
+    def draw():  # within the hands' reach (y >= 0), apart
+        return rng.uniform([-0.2, 0.0], [0.2, 0.25], size=(3, 2))
+
+    positions = draw()
+    while min(np.linalg.norm(positions[a] - positions[b]) for a, b in ((0, 1), (0, 2), (1, 2))) \
+            < 0.08:
+        positions = draw()
+    rule, rules = [(1, ()), (2, ()), (2, ("G !(eta[1,1] & F eta[2,1])",)),
+                   (1, ("G(eta[2,3] -> WX !eta[2,1])",))][seed % 4]
+    delivery = ("reach", "rest")[(seed // 4) % 2]
+    objects = [{"name": f"object{j + 1}", "position": p.round(3).tolist(),
+                "goal": ("red", "blue")[int(rng.integers(2))]} for j, p in enumerate(positions)]
+    return scene(rule, rules, objects=objects, delivery=delivery, m_o=1 + seed % 2)
+
+
+def replayed_trace_satisfies(s: Scenario, spec, res) -> bool:
+    """The independent check: replay through the model, evaluate the specification directly."""
+    objects = list(spec.objects)
+    model = Model.from_scenario(s, objects)
+    traj = res.trajectory
+    local = State.initial(s).select(objects)
+    replay = simulate(model, local, traj.force, traj.grasp)
+    if violations(model, replay):
+        return False
+    def value(atom: Atom, k: int) -> bool:
+        if atom.name == "eta":
+            i, j = atom.index
+            return bool(replay.grasp[k, i - 1, objects.index(j - 1)])
+        (j,) = atom.index
+        n = objects.index(j - 1)
+        return bool(model.goals[n].contains(replay.object_pos[k, n], POSITION_TOL))
+
+    return evaluate(spec.formula(), value, res.horizon)
+
+
+def first_feasible(s: Scenario, spec):
+    """The monolithic reference: the shortest feasible horizon and its optimum."""
+    state = State.initial(s)
+    for T in range(3, 16):
+        res = solve_step(s, state, spec, T)
+        if res.status is not Status.INFEASIBLE:
+            return res
+    raise AssertionError("no horizon up to 15")
+
+
+def held_by_both(res) -> bool:
+    g = res.trajectory.grasp[1:]
+    return bool((g[:, 0].any(axis=0) & g[:, 1].any(axis=0)).any())
+
+
+@pytest.mark.parametrize("seed", range(16))
+def test_search_returns_the_monolithic_optimum_of_the_same_horizon(seed: int) -> None:
+    s = random_scene(seed)
+    spec = specification(s, [0, 1, 2])
+    mono = first_feasible(s, spec)
+    assert mono.status is Status.OPTIMAL
+    state = State.initial(s)
+    exact = dataclasses.replace(s, solver=dataclasses.replace(s.solver, handover="always"))
+    found = search_step(exact, state, spec, mono.horizon)
+    assert found.status is Status.OPTIMAL
+    assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
+    assert replayed_trace_satisfies(s, spec, found)
+    # The shorter horizon has no plan for the search either.
+    assert search_step(exact, state, spec, mono.horizon - 1).status is Status.INFEASIBLE
+    # The default search (hand-overs only where needed) matches whenever the monolithic
+    # optimum holds no object with both hands, and is never below it.
+    auto = search_step(s, state, spec, mono.horizon)
+    assert auto.cost >= mono.cost * (1 - 1e-6) - 1e-9
+    if not held_by_both(mono):
+        assert auto.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
+
+
+def test_search_statistics_count_the_work_done() -> None:
+    s = random_scene(1)
+    spec = specification(s, [0, 1, 2])
+    mono = first_feasible(s, spec)
+    search = StepSearch(s, State.initial(s), spec, mono.horizon,
+                        SolveOptions(time_limit_s=30, mip_rel_gap=1e-7))
+    assert search.feasible()
+    res = search.run()
+    assert res.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
+    assert search.stats.relaxations > 0
+    assert search.stats.cpu_time_s > 0
