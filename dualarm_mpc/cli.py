@@ -20,8 +20,11 @@ def _overrides(args: argparse.Namespace) -> dict:
         value = getattr(args, flag, None)
         if value is not None:
             out[field] = value
-    if getattr(args, "time_limit", None) is not None:
-        out["solver"] = {"time_limit_s": args.time_limit}
+    solver = {key: value for key, value in (("time_limit_s", getattr(args, "time_limit", None)),
+                                            ("search", getattr(args, "search", None)))
+              if value is not None}
+    if solver:
+        out["solver"] = solver
     for text in args.set or []:
         try:
             extra = yaml.safe_load(text)
@@ -40,7 +43,9 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no", type=int, help="n_o, objects considered per sequential step")
     p.add_argument("--seed", type=int, help="seed of random objects (table1_vd)")
     p.add_argument("--delivery", choices=("reach", "rest"), help="what 'delivered' means")
-    p.add_argument("--time-limit", type=float, help="seconds per MILP solve")
+    p.add_argument("--time-limit", type=float, help="seconds per horizon of a step")
+    p.add_argument("--search", choices=("skeleton", "monolithic"),
+                   help="solve each horizon by the skeleton search (default) or as one MILP")
     p.add_argument("--set", action="append", metavar="YAML",
                    help="override any scenario field, e.g. --set 'max_speed: 0.3' (repeatable)")
 
@@ -71,7 +76,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     check = verify(scenario, result)
     result = type(result)(**{**result.__dict__, "verified": check.ok})
     print(f"total: {sum(len(s.delivered) for s in result.segments)}/{scenario.n_objects} "
-          f"delivered, cost {result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s")
+          f"delivered, cost {result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
+          f"(CPU {result.total_cpu_time_s:.2f} s)")
     if args.out:
         result.save(args.out)
         print(f"wrote {args.out}")

@@ -70,10 +70,11 @@ class Segment:
     delivered: list[int]  # the ones at rest in their goal at the end of the step
     horizon: int
     status: str
-    solve_time_s: float
+    solve_time_s: float  # wall time of the whole step: every horizon, build and solve
     cost: float
     binaries: int = 0
     gap: float = 0.0
+    cpu_time_s: float = 0.0  # CPU time of the step summed over every worker thread
 
     def to_json(self) -> dict:
         return {
@@ -85,6 +86,7 @@ class Segment:
             "cost": round(self.cost, 9),
             "binaries": self.binaries,
             "gap": self.gap,
+            "cpu_time_s": round(self.cpu_time_s, 4),
         }
 
 
@@ -102,6 +104,7 @@ class Plan:
     delivered_step: list[int | None]
     segments: list[Segment] = field(default_factory=list)
     verified: bool = False
+    search: str = "skeleton"  # how each step was solved: "skeleton" or "monolithic"
 
     @property
     def total_cost(self) -> float:
@@ -110,6 +113,10 @@ class Plan:
     @property
     def total_solve_time_s(self) -> float:
         return float(sum(s.solve_time_s for s in self.segments))
+
+    @property
+    def total_cpu_time_s(self) -> float:
+        return float(sum(s.cpu_time_s for s in self.segments))
 
     def to_json(self) -> dict:
         return {
@@ -125,6 +132,8 @@ class Plan:
             "total_cost": round(self.total_cost, 9),
             "total_solve_time_s": round(self.total_solve_time_s, 4),
             "verified": self.verified,
+            "total_cpu_time_s": round(self.total_cpu_time_s, 4),
+            "search": self.search,
         }
 
     def save(self, path: str | Path) -> None:
@@ -143,6 +152,7 @@ class Plan:
             delivered_step=data["delivered_step"],
             segments=[Segment(**s) for s in data.get("segments", [])],
             verified=data.get("verified", False),
+            search=data.get("search", "monolithic"),
         )
 
     @staticmethod

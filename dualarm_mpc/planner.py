@@ -173,7 +173,9 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
             break
         objects = select_objects(scenario, state, remaining)
         spec = specification(scenario, objects, rules=rules)
+        cpu0 = time.process_time()
         res, total = plan_step(scenario, state, spec, options)
+        cpu = time.process_time() - cpu0
         step = embed_step(scenario, state, objects, res.trajectory)
         offset = 0 if trajectory is None else trajectory.steps
         trajectory = step if trajectory is None else trajectory.then(step)
@@ -187,6 +189,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         done = done | now
         seg = Segment(objects=objects, delivered=newly, horizon=res.horizon,
                       status=res.status.value, solve_time_s=total, cost=res.cost,
+                      cpu_time_s=cpu,
                       binaries=res.binaries, gap=float(res.gap))
         segments.append(seg)
         if progress:
@@ -200,5 +203,5 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
                  for o in scenario.objects],
         workspace=list(scenario.workspace), trajectory=trajectory,
-        delivered_step=delivered_step, segments=segments,
+        delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
     )
