@@ -34,6 +34,7 @@ from pathlib import Path
 
 from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
 
+from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.mld import State
 from dualarm_mpc.planner import PlanningError, plan, predict_horizon
 from dualarm_mpc.scenario import load_scenario
@@ -79,8 +80,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--run-budget", type=float, default=None, metavar="S",
                    help="stop a run after S s of wall time (checked between solves, so a run "
                         "can overshoot by one solve); default: no budget")
-    p.add_argument("--jobs", type=int, default=1,
-                   help="runs in parallel processes (default 1: timing on an idle core)")
+    p.add_argument("--search", choices=("skeleton", "monolithic"), default="skeleton",
+                   help="how each step is solved: the skeleton search (default) or one MILP")
+    p.add_argument("--workers", "--jobs", dest="workers", type=int, default=1,
+                   help="runs in parallel processes, each solving with one thread (default 1: "
+                        "a run has the machine to itself and its search uses both cores)")
+    p.add_argument("--compare", action="store_true",
+                   help="also solve every step of every plan as one monolithic MILP from the "
+                        "same state and horizon, and compare the optima")
     p.add_argument("--json", type=Path, default=Path("bench/results/table2.json"))
     p.add_argument("--summarize", type=Path, metavar="JSON",
                    help="print the tables of an earlier (possibly partial) run's JSON; run nothing")
@@ -91,7 +98,8 @@ def grid(args: argparse.Namespace) -> list[dict]:
     forms = FORMS if args.compare_forms else (args.task_form,)
     return [
         {"m_o": m, "n_o": n, "rule": rule, "seed": seed, "task_form": form,
-         "time_limit_s": args.time_limit, "run_budget_s": args.run_budget}
+         "time_limit_s": args.time_limit, "run_budget_s": args.run_budget,
+         "search": args.search, "shared_machine": args.workers > 1, "compare": args.compare}
         for (m, n) in args.rows for rule in args.rules for seed in args.seeds for form in forms
     ]
 
@@ -132,8 +140,12 @@ def step_records(scenario, result, segments) -> list[dict]:
 def run_one(task: dict) -> dict:
     """Plan and verify one (row, rule, seed, form); always returns a record, never raises."""
     overrides = {k: task[k] for k in ("m_o", "n_o", "rule", "seed", "task_form")}
-    overrides |= {"delivery": "reach", "solver": {"time_limit_s": task["time_limit_s"]}}
-    record = dict(task, status="error", message="", cost=None, solve_time_s=None)
+    solver = {"time_limit_s": task["time_limit_s"], "search": task["search"]}
+    if task["shared_machine"]:
+        solver["workers"] = 1  # the processes share the cores already
+    overrides |= {"delivery": "reach", "solver": solver}
+    record = dict(task, status="error", message="", cost=None, solve_time_s=None,
+                  cpu_time_s=None)
     segments, result, scenario = [], None, None
     if task["run_budget_s"]:
         signal.signal(signal.SIGALRM, _out_of_budget)
@@ -145,7 +157,8 @@ def run_one(task: dict) -> dict:
         signal.setitimer(signal.ITIMER_REAL, 0)
         check = verify(scenario, result)
         record.update(status="ok" if check.ok else "verify_failed", problems=check.problems,
-                      cost=result.total_cost, solve_time_s=result.total_solve_time_s)
+                      cost=result.total_cost, solve_time_s=result.total_solve_time_s,
+                      cpu_time_s=result.total_cpu_time_s)
     except PlanningError as err:
         record.update(status="planning_error", message=str(err))
     except RunBudgetExceeded:
@@ -157,15 +170,33 @@ def run_one(task: dict) -> dict:
     record["wall_time_s"] = time.perf_counter() - t0
     record["load_avg_1min"] = os.getloadavg()[0]  # other work on the machine skews the times
     record["steps"] = step_records(scenario, result, segments)
+    if task["compare"] and result is not None:
+        compare_steps(scenario, result, record["steps"])
     return record
 
 
-def run_all(tasks: list[dict], jobs: int):
-    """Yield records as runs finish: in order in this process, or in ``jobs`` processes."""
-    if jobs <= 1:
+def compare_steps(scenario, result, steps: list[dict]) -> None:
+    """The monolithic MILP of each step from the same state and horizon: its optimum next to
+    ours (``monolithic_cost``, ``monolithic_status``). Whole plans can differ where a step has
+    several optimal plans, so the optima are compared step by step."""
+    t = result.trajectory
+    k = 0
+    for step, seg in zip(steps, result.segments, strict=True):
+        state = State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k],
+                      t.grasp[k])
+        mono = solve_step(scenario, state, specification(scenario, seg.objects), seg.horizon)
+        step["monolithic_status"] = mono.status.value
+        step["monolithic_cost"] = mono.cost if mono.status.has_solution else None
+        step["monolithic_time_s"] = mono.solve_time_s + mono.build_time_s
+        k += seg.horizon
+
+
+def run_all(tasks: list[dict], workers: int):
+    """Yield records as runs finish: in order in this process, or in ``workers`` processes."""
+    if workers <= 1:
         yield from map(run_one, tasks)
         return
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with ProcessPoolExecutor(max_workers=workers) as pool:
         for future in as_completed([pool.submit(run_one, t) for t in tasks]):
             yield future.result()
 
@@ -214,7 +245,21 @@ def summarize(records: list[dict], key: tuple) -> dict:
         "steps_run": len(tried),
         "steps_at_limit": sum(s["status"] == "feasible" for s in tried),
         "extra_horizon_tries": sum(s["horizon"] - s["predicted_horizon"] for s in steps),
+        "mean_cpu_time_s": statistics.fmean(r["cpu_time_s"] for r in ok) if ok else None,
+        "shared_machine": any(r.get("shared_machine") for r in runs),
+        **monolithic_agreement(steps),
     }
+
+
+def monolithic_agreement(steps: list[dict]) -> dict:
+    """How many steps' optima the monolithic MILP (``--compare``) confirmed: equal within the
+    gap (1e-4 relative), decided otherwise (a mismatch), or left undecided at its time limit."""
+    compared = [s for s in steps if "monolithic_status" in s]
+    decided = [s for s in compared if s["monolithic_status"] == "optimal"]
+    equal = [s for s in decided
+             if abs(s["cost"] - s["monolithic_cost"]) <= 2e-4 * max(abs(s["cost"]), 1e-9)]
+    return {"steps_compared": len(compared), "steps_monolithic_decided": len(decided),
+            "steps_equal_to_monolithic": len(equal)}
 
 
 def summary_rows(records: list[dict]) -> list[dict]:
@@ -225,13 +270,24 @@ def summary_rows(records: list[dict]) -> list[dict]:
 def table2(summary: list[dict], form: str) -> str:
     """The paper's Table II next to ours, for one task form."""
     header = ["(m_o,n_o)", "rule", "runs", "our mean cost", "paper cost", "cost ratio",
-              "our mean time (s)", "paper time (s)", "time ratio", "steps proven optimal"]
+              "our mean time (s)", "paper time (s)", "time ratio", "steps proven optimal",
+              "CPU time (s)", "steps = monolithic"]
     rows = [[f"({s['m_o']},{s['n_o']})", str(s["rule"]), f"{s['ok']}/{s['runs']}",
              fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]), fmt(s["cost_ratio"]),
              fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".3g"), fmt(s["time_ratio"]),
-             f"{s['steps_optimal']}/{s['steps']}"]
+             f"{s['steps_optimal']}/{s['steps']}", fmt(s["mean_cpu_time_s"], ".1f"),
+             agreement(s)]
             for s in summary if s["task_form"] == form]
     return table(header, rows)
+
+
+def agreement(s: dict) -> str:
+    """"equal/decided (undecided)" for the steps compared with the monolithic MILP."""
+    if not s["steps_compared"]:
+        return "—"
+    undecided = s["steps_compared"] - s["steps_monolithic_decided"]
+    return (f"{s['steps_equal_to_monolithic']}/{s['steps_monolithic_decided']}"
+            + (f" ({undecided} undecided)" if undecided else ""))
 
 
 def detail(summary: list[dict]) -> str:
@@ -272,7 +328,10 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     forms = FORMS if args.compare_forms else (args.task_form,)
     parts = []
     for form in forms:
-        parts += [f"Table II, task form {form}, time limit {args.time_limit:g} s per solve "
+        shared = "runs in parallel processes (shared machine)" if args.workers > 1 else \
+            "one run at a time (the machine to itself)"
+        parts += [f"Table II, {args.search} search, task form {form}, time limit "
+                  f"{args.time_limit:g} s per horizon, {shared} "
                   f"(runs = verified plans / runs):", "", table2(summary, form), ""]
     parts += ["Detail:", "", detail(summary), ""]
     if args.compare_forms:
@@ -308,7 +367,7 @@ def main(argv: list[str] | None = None) -> int:
     info = machine()
     records: list[dict] = []
     t0 = time.perf_counter()
-    for k, record in enumerate(run_all(tasks, args.jobs), 1):
+    for k, record in enumerate(run_all(tasks, args.workers), 1):
         records.append(record)
         print(progress_line(k, len(tasks), record), file=sys.stderr, flush=True)
         write_json(args.json, args, records, info, complete=k == len(tasks))
