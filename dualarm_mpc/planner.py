@@ -18,14 +18,15 @@ from dualarm_mpc.horizon import StepResult, solve_step, solver_options
 from dualarm_mpc.mld import POSITION_TOL, Box, Model, State, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.search import horizon_has_plan, search_step
+from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, rule_formulas, specification
 
 log = logging.getLogger(__name__)
 
 REST_TOL = 1e-6  # m/s: "at rest" in the model's own units
-CHECK_CAP_AFTER = 3  # horizons without a plan before the largest one is checked (plan_step)
+CHECK_CAP_AFTER = 4  # horizons without a plan before the largest one is checked (plan_step)
+CAP_CHECK_TIME_S = 3.0  # per relaxation of that check
 
 
 class PlanningError(RuntimeError):
@@ -84,16 +85,16 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
 
     With the skeleton search and a specification whose feasibility is monotone in T
     (:meth:`Specification.monotone_in_horizon`), once ``CHECK_CAP_AFTER`` horizons had no
-    plan the largest one is checked: if it has none, no horizon has, and the conflict is
-    diagnosed at once instead of after every horizon. (Not earlier: a plan at the largest
-    horizon is slow to find, and most steps need no more than two or three horizons.)"""
+    plan the largest one is checked by the search's relaxations alone
+    (:func:`search.horizon_ruled_out`, a few seconds at most): if they rule it out, no horizon
+    has a plan, and the conflict is diagnosed at once instead of after every horizon."""
     t0 = time.perf_counter()
     cap = scenario.solver.max_horizon
     last = None
     monotone = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
     for n, T in enumerate(range(predict_horizon(scenario, state, spec), cap + 1)):
         if monotone and n == CHECK_CAP_AFTER and T < cap and \
-                horizon_has_plan(scenario, state, spec, cap, options) is Status.INFEASIBLE:
+                horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
             raise PlanningError(diagnose(scenario, state, spec, None, options))
         res = solve_horizon(scenario, state, spec, T, options)
         if on_try:

@@ -421,6 +421,16 @@ class StepSearch:
         self.fetch((k, False) for k in keys)
         return all(self._relax[k].status.has_solution for k in keys)
 
+    def ruled_out(self) -> bool:
+        """Whether the relaxations alone prove that the horizon has no plan: every node has an
+        infeasible one. Stops at the first node that they cannot rule out (a cheap check: no
+        joint program is solved)."""
+        single = self.nodes(handed_over=False)
+        for node in itertools.chain(single, (n for n in self.nodes() if n.handed_over)):
+            if self._relaxations_feasible(node) or self.stats.timed_out:
+                return False
+        return True
+
     def evaluate(self, node: Node, incumbent: float) -> StepResult:
         """The node's optimum: composed from both hands' solutions when they fit together
         (directly or with their grasps kept), else the joint node program."""
@@ -506,6 +516,17 @@ def _bound(res: StepResult) -> float:
     if res.status is Status.OPTIMAL:
         return max(min(res.bound, res.cost), 0.0) if np.isfinite(res.bound) else res.cost
     return max(res.bound, 0.0) if np.isfinite(res.bound) else 0.0
+
+
+def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
+                      time_limit_s: float) -> bool:
+    """Whether the one-hand and one-object relaxations prove that ``horizon`` has no plan
+    (within ``time_limit_s``; False when they cannot tell)."""
+    options = replace(solver_options(scenario), time_limit_s=time_limit_s)
+    with ThreadPoolExecutor(scenario.solver.workers) as pool:
+        search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover,
+                            pool)
+        return search.ruled_out()
 
 
 def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, horizon: int,
