@@ -34,11 +34,12 @@ class PlanningError(RuntimeError):
 
 
 def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                  options: SolveOptions | None = None) -> StepResult:
+                  options: SolveOptions | None = None, start=None) -> StepResult:
     """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
-    the monolithic MILP (the same optimum; the search is much faster on hard steps)."""
+    the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
+    is a MIP start for the monolithic MILP (:func:`horizon.solve_step`)."""
     if scenario.solver.search == "monolithic":
-        return solve_step(scenario, state, spec, horizon, options)
+        return solve_step(scenario, state, spec, horizon, options, start)
     return search_step(scenario, state, spec, horizon, options)
 
 

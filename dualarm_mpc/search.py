@@ -215,6 +215,8 @@ class StepSearch:
                                        self.horizon)
         self._model = self._program.model
         self._local = {j: n for n, j in enumerate(self.spec.objects)}
+        local_grasp = self.state.grasp[:, list(self.spec.objects)]
+        self._held = [j for n, j in enumerate(self.spec.objects) if local_grasp[:, n].any()]
 
     # -- the subprograms ----------------------------------------------------------------------
 
@@ -240,17 +242,21 @@ class StepSearch:
     # A relaxation is named by a key: ("hand", i, S) for c_i(S), ("alone", j) for c(j).
 
     def _compute(self, key: tuple, exact: bool) -> StepResult:
+        # An object held now may stay held by either hand: untouching it is not free (it would
+        # slide off), so every relaxation leaves it as the node programs may.
+        held = [(i, j) for j in self._held for i in range(N_HANDS)]
         if key[0] == "alone":
             j = key[1]
             return self._solve(restricted(self.spec, (j,), (j,)),
-                               self._mask((i, j) for i in range(N_HANDS)), exact=exact)
+                               self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact)
         _, i, share = key
         floor = np.zeros(N_HANDS)
         floor[i] = self._hand_bound(i, share)
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
             return _INFEASIBLE
-        return self._solve(restricted(self.spec, share, share), self._mask((i, j) for j in share),
-                           hands=(i,), floor=floor, exact=exact)
+        return self._solve(restricted(self.spec, share, share),
+                           self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
+                           exact=exact)
 
     def _wanted(self, key: tuple, exact: bool) -> bool:
         """Not known yet: a probe's answer stands for an exact one only when "infeasible"."""
@@ -398,11 +404,16 @@ class StepSearch:
         the optimization too, and a plan found is its first incumbent."""
         single = self.nodes(handed_over=False)
         nodes = itertools.chain(single, (n for n in self.nodes() if n.handed_over))
+        undecided = False
         for n, node in enumerate(nodes):
             if n == 1:  # past the first guess, most singles will be needed: all at once
                 self.fetch((("hand", i, (j,)), False)
                            for j in self.spec.objects for i in range(N_HANDS))
-            if not self._relaxations_feasible(node):
+            relaxed = self._relaxations_feasible(node)
+            if relaxed is None:  # a relaxation ran out of time: the horizon is undecided
+                self.stats.timed_out = True
+                return True
+            if not relaxed:
                 continue
             witness = None if node.handed_over or node.free else self.compose(node, exact=False)
             if witness is None:
@@ -410,16 +421,24 @@ class StepSearch:
             if witness.status.has_solution:
                 self._witness = witness
                 return True
+            undecided |= witness.status is not Status.INFEASIBLE
             if time.perf_counter() > self._deadline:
-                self.stats.timed_out = True
-                return True  # undecided: the optimization reports the time limit
-        return False
+                undecided = True
+                break
+        # Undecided: run() reports the time limit rather than an infeasible horizon.
+        self.stats.timed_out |= undecided
+        return undecided
 
-    def _relaxations_feasible(self, node: Node) -> bool:
+    def _relaxations_feasible(self, node: Node) -> bool | None:
+        """True when every relaxation of the node has a solution, False when one is proven
+        infeasible, None when one ran out of time (undecided)."""
         keys = [("alone", j) for j in node.handed_over]
         keys += [("hand", i, node.share(i)) for i in range(N_HANDS)]
         self.fetch((k, False) for k in keys)
-        return all(self._relax[k].status.has_solution for k in keys)
+        statuses = [self._relax[k].status for k in keys]
+        if Status.INFEASIBLE in statuses:
+            return False
+        return True if all(st.has_solution for st in statuses) else None
 
     def ruled_out(self) -> bool:
         """Whether the relaxations alone prove that the horizon has no plan: every node has an
@@ -427,7 +446,7 @@ class StepSearch:
         joint program is solved)."""
         single = self.nodes(handed_over=False)
         for node in itertools.chain(single, (n for n in self.nodes() if n.handed_over)):
-            if self._relaxations_feasible(node) or self.stats.timed_out:
+            if self._relaxations_feasible(node) is not False:
                 return False
         return True
 

@@ -333,16 +333,16 @@ def test_solver_time_outs_never_stop_the_simulation() -> None:
 def test_failing_replans_are_recorded_and_the_previous_plan_still_delivers(monkeypatch) -> None:
     """Solver errors injected into three consecutive solves mid-run: each replan records
     "error" with the exception and keeps the plan in force; the task still completes."""
-    real_solve_step = planner_module.solve_step
+    real_solve_horizon = planner_module.solve_horizon
     calls = {"n": 0}
 
-    def flaky_solve_step(*args, **kwargs):
+    def flaky_solve_horizon(*args, **kwargs):
         calls["n"] += 1
         if 3 <= calls["n"] <= 5:
             raise RuntimeError(f"injected failure {calls['n']}")
-        return real_solve_step(*args, **kwargs)
+        return real_solve_horizon(*args, **kwargs)
 
-    monkeypatch.setattr(planner_module, "solve_step", flaky_solve_step)
+    monkeypatch.setattr(planner_module, "solve_horizon", flaky_solve_horizon)
     scenario = scene("flaky", [ObjectSpec("a", [0.1, 0.1], "red")])
     summary = simulate(scenario)
     errors = [r for r in summary.replans if r["status"] == "error"]

@@ -107,7 +107,8 @@ def test_plan_round_trips_through_json(two_object_plan, tmp_path) -> None:
         np.testing.assert_allclose(a, b, atol=1e-8)
     assert verify(scenario, q).ok
     assert q.segments == [
-        dataclasses.replace(s, solve_time_s=round(s.solve_time_s, 4), cost=round(s.cost, 9))
+        dataclasses.replace(s, solve_time_s=round(s.solve_time_s, 4), cost=round(s.cost, 9),
+                            cpu_time_s=round(s.cpu_time_s, 4))
         for s in p.segments
     ]
 

@@ -198,3 +198,24 @@ def test_search_statistics_count_the_work_done() -> None:
     assert res.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
     assert search.stats.relaxations > 0
     assert search.stats.cpu_time_s > 0
+
+
+@pytest.mark.parametrize("rule", [1, 2])
+def test_search_matches_the_monolithic_optimum_mid_carry(rule: int) -> None:
+    """From states inside a plan, where a hand holds a moving object (the closed loop's replans):
+    the relaxations must leave a held object to the hands, or they are no relaxations."""
+    s = scene(rule, m_o=1)
+    spec = specification(s, [0, 1, 2])
+    start = first_feasible(s, spec)
+    t = start.trajectory
+    held = [k for k in range(1, len(t.grasp) - 1) if t.grasp[k].any()]
+    assert held, "the plan carries an object"
+    for k in held[:3]:
+        state = State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k], t.grasp[k])
+        for T in range(1, 16):
+            mono = solve_step(s, state, spec, T)
+            found = search_step(s, state, spec, T)
+            assert found.status.has_solution == mono.status.has_solution, (k, T)
+            if mono.status.has_solution:
+                assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9), (k, T)
+                break

@@ -25,10 +25,10 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.horizon import StepResult, solve_step, solver_options
+from dualarm_mpc.horizon import StepResult, solver_options
 from dualarm_mpc.mld import Box, Model, State, reachability
 from dualarm_mpc.plan import TimedTrajectory
-from dualarm_mpc.planner import embed_step, predict_horizon, select_objects
+from dualarm_mpc.planner import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import Status
 from dualarm_mpc.spec import rule_formulas, specification
@@ -187,7 +187,7 @@ class MpcPlanner(LeafSystem):
         # The shortest feasible horizon, every replan: with cost (17) alone, a longer horizon
         # lets the plan idle first, and a receding horizon would then never arrive.
         for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
-            res = solve_step(sc, state, spec, T, self._options, start=start)
+            res = solve_horizon(sc, state, spec, T, self._options, start=start)
             if res.status is not Status.INFEASIBLE:
                 break
             if time.perf_counter() - wall0 > self._options.time_limit_s:
