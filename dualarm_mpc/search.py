@@ -220,6 +220,11 @@ class StepSearch:
 
     # -- the subprograms ----------------------------------------------------------------------
 
+    def _stopped(self) -> bool:
+        """Out of time, or asked to stop (``options.interrupt``)."""
+        stop = self.options.interrupt
+        return time.perf_counter() > self._deadline or (stop is not None and stop.is_set())
+
     def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
                start=None, floor=None, exact: bool = True) -> StepResult:
         """One subprogram; ``exact`` false stops at its first solution (a feasibility probe)."""
@@ -422,7 +427,7 @@ class StepSearch:
                 self._witness = witness
                 return True
             undecided |= witness.status is not Status.INFEASIBLE
-            if time.perf_counter() > self._deadline:
+            if self._stopped():
                 undecided = True
                 break
         # Undecided: run() reports the time limit rather than an infeasible horizon.
@@ -488,7 +493,7 @@ class StepSearch:
             if best is not None and lb >= best.cost * (1 - gap) - 1e-9:
                 heapq.heappush(heap, (lb, next(counter), node))
                 break
-            if time.perf_counter() > self._deadline:
+            if self._stopped():
                 heapq.heappush(heap, (lb, next(counter), node))
                 self.stats.timed_out = True
                 break

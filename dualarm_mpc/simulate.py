@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +52,9 @@ class Summary:
     wall_time_s: float
     all_delivered: bool
     events: list[dict]
+    # Replans that reached their wall-time budget: the robot followed the plan in force (or
+    # waited at rest) while the search went on. Their times, as in ``replans``.
+    replans_over_budget: list[float] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -121,6 +124,7 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
         else:
             finished_at = None
     wall = time.perf_counter() - wall0
+    dual.planner.close()
     if meshcat is not None:
         recording.save_recording(meshcat, html)
     return _summary(scenario, dual, context, t, wall)
@@ -158,4 +162,6 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float) -> Summar
         wall_time_s=round(wall, 3),
         all_delivered=all(resting),
         events=[e.__dict__ for e in scenario.events],
+        replans_over_budget=[round(r.t, 3) for r in s.replans
+                             if r.status in ("searching", "over_budget")],
     )

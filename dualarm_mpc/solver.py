@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import enum
 import logging
+import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -40,6 +41,38 @@ class SolveOptions:
     mip_rel_gap: float = 1e-4
     threads: int = 1
     backend: str = "highs"  # or "gurobi" / "mosek" (Drake, licensed)
+    # Stops the solves under these options from another thread (a replan that ran out of time).
+    interrupt: Interrupt | None = field(default=None, compare=False)
+
+
+class Interrupt:
+    """A stop request for running solves, from any thread: each HiGHS run under it is
+    cancelled through HiGHS's interrupt callback and ends with status "time_limit" (or
+    "feasible" with its incumbent)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._running: set = set()
+        self._set = False
+
+    def set(self) -> None:
+        with self._lock:
+            self._set = True
+            for h in self._running:
+                h.cancelSolve()
+
+    def is_set(self) -> bool:
+        return self._set
+
+    def attach(self, h) -> None:
+        with self._lock:
+            self._running.add(h)
+            if self._set:
+                h.cancelSolve()
+
+    def detach(self, h) -> None:
+        with self._lock:
+            self._running.discard(h)
 
 
 @dataclass(frozen=True)
@@ -178,7 +211,15 @@ def solve_standard_form(f: StandardForm, options: SolveOptions,
         sol.col_value = list(np.clip(start, f.col_lb, f.col_ub))
         sol.value_valid = True
         h.setSolution(sol)
-    h.run()
+    stop = options.interrupt
+    if stop is not None:
+        h.HandleUserInterrupt = True
+        stop.attach(h)
+    try:
+        h.run()
+    finally:
+        if stop is not None:
+            stop.detach(h)
     wall = time.perf_counter() - t0
     status = h.getModelStatus()
     info = h.getInfo()

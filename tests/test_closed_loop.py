@@ -39,9 +39,10 @@ from dualarm_mpc.systems.state_estimator import split_measured_state
 REST_SPEED = 0.01  # m/s: "at rest", as the summary and the planner count it
 # Statuses a replan may record: the solver's (dualarm_mpc.solver.Status), "done" once every
 # object rests in (or slides into) its goal, "stuck" when the objects left can provably no longer
-# reach their goals, "no_horizon" when no horizon was tried.
+# reach their goals, "no_horizon" when no horizon was tried, "searching" / "over_budget" when the
+# replan's wall-time budget ran out (the search goes on at rest / the plan in force is kept).
 KNOWN_STATUSES = {"optimal", "feasible", "infeasible", "unbounded", "time_limit", "error", "done",
-                  "stuck", "no_horizon"}
+                  "stuck", "no_horizon", "searching", "over_budget"}
 SOLUTION_STATUSES = {"optimal", "feasible"}
 
 # §V-D bounds and goals (Table I; design §5), hand range extended down to y = -0.3 (README).
@@ -328,6 +329,20 @@ def test_solver_time_outs_never_stop_the_simulation() -> None:
             assert "kept the previous plan" in r["note"], r
     assert summary.realtime_factor > 0
     assert all(math.isfinite(c) for p in summary.final_object_pos for c in p)
+
+
+def test_a_search_longer_than_the_budget_goes_on_while_the_robot_waits() -> None:
+    """A budget far below any solve: replans record "searching" (at rest, the search goes on in
+    the background) or "over_budget" (moving, the plan in force is kept), the simulation never
+    waits for the search, and every object still ends at rest in its goal."""
+    scenario = scene("budget", two_objects(), solver={"replan_budget_s": 0.002})
+    summary = simulate(scenario)
+    statuses = [r["status"] for r in summary.replans]
+    assert "searching" in statuses, statuses
+    assert summary.replans_over_budget == [r["t"] for r in summary.replans
+                                           if r["status"] in ("searching", "over_budget")]
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert_replans_recorded(summary, scenario)
 
 
 def test_failing_replans_are_recorded_and_the_previous_plan_still_delivers(monkeypatch) -> None:

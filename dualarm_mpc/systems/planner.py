@@ -10,6 +10,11 @@ sequential step from it (Algorithm 1, one step at a time):
 * within a step every replan takes the shortest feasible horizon from the measured state (so the
   plan cannot idle and the step arrives), MIP-started from the previous plan's grasps shifted by
   one step;
+* real time: a replan holds the simulation for ``solver.replan_budget_s`` of wall time at most
+  (0.8 Δt by default). The search runs on a worker thread; past the budget the robot follows the
+  plan in force. While the robot waits at rest with no plan left (the first replan of a step),
+  the search goes on over the next periods and its plan starts when it ends ("searching"); while
+  the robot moves, the late search is stopped ("over_budget") and the next period plans afresh;
 * a solver time-out, an infeasible horizon or any error keeps the previous plan; every replan's
   wall time, status and cost are recorded in the state. Nothing raises inside the simulation.
 """
@@ -19,6 +24,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,7 +37,7 @@ from dualarm_mpc.mld import Box, Model, State, reachability
 from dualarm_mpc.plan import TimedTrajectory
 from dualarm_mpc.planner import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.solver import Status
+from dualarm_mpc.solver import Interrupt, SolveOptions, Status
 from dualarm_mpc.spec import rule_formulas, specification
 from dualarm_mpc.systems.interpolator import empty_plan, sample_grasp
 from dualarm_mpc.systems.state_estimator import split_measured_state
@@ -92,6 +99,11 @@ class MpcPlanner(LeafSystem):
         super().__init__()
         self._scenario = scenario
         self._options = solver_options(scenario, time_limit_s)
+        # Wall time a replan may hold the simulation: one control period at most.
+        budget = scenario.solver.replan_budget_s
+        self._budget_s = 0.8 * scenario.dt if budget is None else budget
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
+        self._pending: tuple[_Job, Future] | None = None  # a search carried over
         self._rules = rule_formulas(scenario)
         n = scenario.n_objects
         initial = MpcState(
@@ -105,6 +117,10 @@ class MpcPlanner(LeafSystem):
             "plan", lambda: AbstractValue.Make(initial.plan), self._calc_plan,
             prerequisites_of_calc={self.abstract_state_ticket(self._state)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(scenario.dt, 0.0, self._update)
+
+    def close(self) -> None:
+        """Stop a search still running in the background (the simulation is over)."""
+        self._abandon()
 
     def get_measured_state_input_port(self):
         return self._measured
@@ -132,9 +148,10 @@ class MpcPlanner(LeafSystem):
         s = self.mpc_state(context)
         wall0 = time.perf_counter()
         try:
-            new = self._replan(t, s, self._measured.Eval(context))
+            new = self._replan(t, s, self._measured.Eval(context), wall0)
         except Exception as err:  # a replan must never stop the simulation
             log.exception("replan at t=%.2f failed", t)
+            self._abandon()
             new = self._record(s, t, wall0, "error", note=f"{type(err).__name__}: {err}")
         state.get_mutable_abstract_state(self._state).set_value(new)
 
@@ -148,8 +165,41 @@ class MpcPlanner(LeafSystem):
                    note=note)
         return dataclasses.replace(s, replans=s.replans + (r,), **changes)
 
-    def _replan(self, t: float, s: MpcState, measured: np.ndarray) -> MpcState:
-        wall0 = time.perf_counter()
+    def _replan(self, t: float, s: MpcState, measured: np.ndarray, wall0: float) -> MpcState:
+        """Wait at most the budget for a plan; past it, follow the plan in force and let the
+        search go on in the background while the robot waits at rest (carried over to the next
+        periods), or stop it while the robot moves (its start state is gone by then)."""
+        if self._pending is not None:
+            job, future = self._pending
+            if job.goals != s.goals or not self._still(job, measured):
+                self._abandon()  # the world moved on: plan afresh below
+            elif not _wait(future, self._budget_s):
+                return self._record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
+            else:
+                self._pending = None
+                return self._adopt(s, job, future.result(), t, wall0)
+        prepared = self._prepare(t, s, measured, wall0)
+        if isinstance(prepared, MpcState):
+            return prepared
+        job = prepared
+        future = self._worker.submit(self._solve, job)
+        if _wait(future, self._budget_s):
+            return self._adopt(s, job, future.result(), t, wall0)
+        if job.idle:
+            self._pending = (job, future)
+            return self._record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
+        job.options.interrupt.set()
+        return self._record(s, t, wall0, "over_budget", note="kept the previous plan",
+                            **job.changes)
+
+    def _abandon(self) -> None:
+        if self._pending is not None:
+            self._pending[0].options.interrupt.set()
+            self._pending = None
+
+    def _prepare(self, t: float, s: MpcState, measured: np.ndarray, wall0: float):
+        """What the replan at ``t`` must solve (a :class:`_Job`), or the new state at once when
+        nothing is left to solve (every object delivered, or the rest out of reach)."""
         sc = dataclasses.replace(self._scenario, goals=s.goals)
         state = self._committed_state(t, s, measured)
         resting = self._resting(sc, state, exhausted=t >= s.horizon_end - 1e-9)
@@ -183,26 +233,52 @@ class MpcPlanner(LeafSystem):
         spec = specification(sc, objects, rules=self._rules)
         spec = dataclasses.replace(spec, m_o=max(1, min(spec.m_o, target - n_done)))
         start = _shifted_start(*grasp_start, objects) if grasp_start is not None else None
-        res = None
-        # The shortest feasible horizon, every replan: with cost (17) alone, a longer horizon
-        # lets the plan idle first, and a receding horizon would then never arrive.
-        for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
-            res = solve_horizon(sc, state, spec, T, self._options, start=start)
-            if res.status is not Status.INFEASIBLE:
-                break
-            if time.perf_counter() - wall0 > self._options.time_limit_s:
-                break
+        idle = bool(np.abs(state.hand_vel).max(initial=0) == 0
+                    and np.abs(state.object_vel).max(initial=0) == 0
+                    and t >= s.horizon_end - 1e-9)
         changes = dict(delivered_time=delivered_time, step_objects=tuple(objects),
                        step_target=target)
+        options = dataclasses.replace(self._options, interrupt=Interrupt())
+        return _Job(sc, state, spec, objects, start, options, idle, s.goals, changes)
+
+    @staticmethod
+    def _solve(job: _Job) -> StepResult | None:
+        """The shortest feasible horizon (with cost (17) alone, a longer horizon lets the plan
+        idle first, and a receding horizon would then never arrive); runs on the worker."""
+        wall0 = time.perf_counter()
+        res = None
+        sc, state, spec = job.scenario, job.state, job.spec
+        for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
+            res = solve_horizon(sc, state, spec, T, job.options, start=job.start)
+            if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
+                break
+            if time.perf_counter() - wall0 > job.options.time_limit_s:
+                break
+        return res
+
+    def _adopt(self, s: MpcState, job: _Job, res: StepResult | None, t: float,
+               wall0: float) -> MpcState:
+        """The plan of a finished search, starting now (a search carried over started from a
+        state the robot still holds at rest)."""
+        sc = job.scenario
         if res is None or not res.status.has_solution:
             status = res.status.value if res else "no_horizon"
-            return self._record(s, t, wall0, status, res,
-                                note="kept the previous plan", **changes)
-        traj = embed_step(sc, state, objects, res.trajectory)
+            return self._record(s, t, wall0, status, res, note="kept the previous plan",
+                                **job.changes)
+        traj = embed_step(sc, job.state, job.objects, res.trajectory)
         plan = TimedTrajectory(t, sc.dt, traj)
         return self._record(s, t, wall0, res.status.value, res, plan=plan,
                             horizon_end=t + res.horizon * sc.dt,
-                            grasp_start=(tuple(objects), res.trajectory.grasp), **changes)
+                            grasp_start=(tuple(job.objects), res.trajectory.grasp),
+                            **job.changes)
+
+    def _still(self, job: _Job, measured: np.ndarray) -> bool:
+        """Whether the robot and the objects still rest where the search carried over started."""
+        m = split_measured_state(measured, self._scenario.n_objects)
+        pos = np.concatenate([m["hand_pos"], m["object_pos"]])
+        was = np.concatenate([job.state.hand_pos, job.state.object_pos])
+        speed = np.abs(np.concatenate([m["hand_vel"], m["object_vel"]])).max(initial=0)
+        return bool(np.abs(pos - was).max(initial=0) < SNAP_POSITION and speed < SNAP_VELOCITY)
 
     def _committed_state(self, t: float, s: MpcState, measured: np.ndarray) -> State:
         """The state a replan starts from: the measured one, with the grasp the previous plan
@@ -269,6 +345,32 @@ class MpcPlanner(LeafSystem):
                            for j, o in enumerate(sc.objects)])
         slow = np.linalg.norm(state.object_vel, axis=1) < REST_SPEED
         return inside & slow & (exhausted | ~state.grasp.any(axis=0))
+
+
+SEARCHING = "over budget: the robot waits at rest while the search goes on"
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One replan's search: what to solve, from which state, and how to stop it."""
+
+    scenario: Scenario
+    state: State
+    spec: object  # spec.Specification
+    objects: list[int]
+    start: object  # MIP start for the monolithic MILP, or None
+    options: SolveOptions  # with the Interrupt that stops it
+    idle: bool  # the robot rests with no plan left: a late result still applies
+    goals: dict[str, list[float]]
+    changes: dict  # the bookkeeping to record with the replan
+
+
+def _wait(future: Future, timeout_s: float) -> bool:
+    try:
+        future.result(timeout=timeout_s)
+    except FutureTimeout:
+        return False
+    return True
 
 
 def _hold(t: float, dt: float, state: State) -> TimedTrajectory:
