@@ -121,6 +121,7 @@ class MpcPlanner(LeafSystem):
     def close(self) -> None:
         """Stop a search still running in the background (the simulation is over)."""
         self._abandon()
+        self._worker.shutdown(wait=False, cancel_futures=True)
 
     def get_measured_state_input_port(self):
         return self._measured
