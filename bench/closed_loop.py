@@ -162,6 +162,7 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
         statuses=dict(Counter(r["status"] for r in summary.replans)),
         replans_without_plan=sum(r["status"] not in SOLUTION for r in solves),
         replans_over_dt=sum(r["wall_s"] > scenario.dt for r in solves),
+        replans_over_budget=len(summary.replans_over_budget),
         final_object_pos=summary.final_object_pos,
         final_object_speed=summary.final_object_speed,
         delivered_time_s=summary.delivered_time_s,
