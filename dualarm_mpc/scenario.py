@@ -67,7 +67,7 @@ class SolverOptions:
     # hand can deliver alone, "always" (exact against the monolithic MILP), "never".
     handover: str = "auto"
     workers: int = 2  # threads solving the skeleton search's independent programs at once
-    # Closed loop: wall time a replan may hold the simulation (default 0.8 Δt); past it the
+    # Closed loop: wall time a replan may hold the simulation (default 0.4 Δt); past it the
     # robot follows the plan in force while the search goes on.
     replan_budget_s: float | None = None
 
