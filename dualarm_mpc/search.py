@@ -3,7 +3,9 @@
 The monolithic MILP of one horizon has an LP relaxation whose bound is zero (a fractional η moves
 an object while the hands' fractions cancel), so HiGHS proves optimality and infeasibility by
 enumeration alone. This module splits the same MILP along its discrete skeleton and searches it
-best-first with admissible bounds; it returns the monolithic optimum of the same horizon.
+best-first with admissible bounds; with hand-overs allowed for every object (``handover:
+always``) it returns the monolithic optimum of the same horizon, by default (``auto``) the
+optimum over the plans that hand over only the objects no single hand can deliver.
 
 *Skeleton node* (D, h): the set D of m_o objects whose delivery satisfies φ_task (13), and for
 each j ∈ D the hand h_j that may hold it (1, 2, or ``BOTH`` for a hand-over). The node's program
@@ -11,7 +13,8 @@ is the monolithic one with η_ij(k ≥ 1) = 0 outside the skeleton and φ_task r
 j ∈ D delivered": a restriction, so its optimum is never below the monolithic one. The nodes
 cover every plan: a plan delivers some D, the hands it uses on D are within some h, and objects
 outside D can be left untouched without changing cost or any rule — which :func:`untouchable`
-proves per rule instance by partial evaluation; objects where that proof fails stay free.
+proves per rule instance by partial evaluation; objects where that proof fails, and objects held
+now, stay free.
 
 *Bounds.* Costing one hand only (the other moves for free, so eq. 16 costs it nothing) and
 leaving out the rule instances that mention the other hand's objects separates a node into one
@@ -20,11 +23,13 @@ bounds the node from below. A hand's optimum only grows with S_i (an object can
 always be left untouched), so before its program is solved c_i(S) ≥ max over solved subsets.
 An object j handed over (h_j = BOTH) is bounded by c(j), both hands delivering j alone.
 
-*Search.* Pop the node of least bound; solve what its bound still lacks; when both hands' programs
-are solved, put their solutions together and check the joint plan by re-simulation and direct
-LTL evaluation (``evaluate.py``, which shares no code with the encoder): if it passes, the node's
-optimum is the sum; otherwise the joint node program is solved. Stop when the incumbent is no
-worse than every open bound.
+*Search.* A feasibility pass (first solutions only) decides whether the horizon has a plan and
+gives the first incumbent. Then pop the node of least bound; solve what its bound still lacks;
+when both hands' programs are solved, put their solutions together and check the joint plan by
+re-simulation and direct LTL evaluation (``evaluate.py``, which shares no code with the
+encoder): if it passes, the node's optimum is the sum; otherwise the best plan with the same
+grasps, and failing that the joint node program, is solved. Stop when the incumbent is no worse
+than every open bound.
 """
 
 from __future__ import annotations
@@ -210,7 +215,7 @@ class StepSearch:
         self._exact: set = set()  # keys of the relaxations solved to optimality
         self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._deadline = time.perf_counter() + self.options.time_limit_s
-        self._workers = self.pool._max_workers if self.pool is not None else 1
+        self._workers = self.scenario.solver.workers if self.pool is not None else 1
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
                                        self.horizon)
         self._model = self._program.model
@@ -455,7 +460,7 @@ class StepSearch:
                 return False
         return True
 
-    def evaluate(self, node: Node, incumbent: float) -> StepResult:
+    def evaluate(self, node: Node) -> StepResult:
         """The node's optimum: composed from both hands' solutions when they fit together
         (directly or with their grasps kept), else the joint node program."""
         if node.handed_over or node.free:
@@ -506,7 +511,7 @@ class StepSearch:
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
             self.stats.nodes += 1
-            res = self.evaluate(node, np.inf if best is None else best.cost)
+            res = self.evaluate(node)
             if res.status.has_solution and (best is None or res.cost < best.cost):
                 best = res
             if res.status in (Status.FEASIBLE, Status.TIME_LIMIT):
