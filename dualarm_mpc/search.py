@@ -264,9 +264,11 @@ class StepSearch:
         floor[i] = self._hand_bound(i, share)
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
             return _INFEASIBLE
+        probe = self._relax.get(key)  # a first solution of the same program starts it
+        start = None if probe is None or probe.solution is None else (lambda x, v=probe.solution: v)
         return self._solve(restricted(self.spec, share, share),
                            self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
-                           exact=exact)
+                           exact=exact, start=start)
 
     def _wanted(self, key: tuple, exact: bool) -> bool:
         """Not known yet: a probe's answer stands for an exact one only when "infeasible"."""
