@@ -70,6 +70,7 @@ from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
+BATCH = 2  # relaxations solved at once in the best-first loop
 
 
 # --- rule instances ----------------------------------------------------------------------------
@@ -215,7 +216,6 @@ class StepSearch:
         self._exact: set = set()  # keys of the relaxations solved to optimality
         self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._deadline = time.perf_counter() + self.options.time_limit_s
-        self._workers = self.scenario.solver.workers if self.pool is not None else 1
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
                                        self.horizon)
         self._model = self._program.model
@@ -264,11 +264,9 @@ class StepSearch:
         floor[i] = self._hand_bound(i, share)
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
             return _INFEASIBLE
-        probe = self._relax.get(key)  # a first solution of the same program starts it
-        start = None if probe is None or probe.solution is None else (lambda x, v=probe.solution: v)
         return self._solve(restricted(self.spec, share, share),
                            self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
-                           exact=exact, start=start)
+                           exact=exact)
 
     def _wanted(self, key: tuple, exact: bool) -> bool:
         """Not known yet: a probe's answer stands for an exact one only when "infeasible"."""
@@ -506,10 +504,12 @@ class StepSearch:
                 break
             need = self.missing(node)
             if need:
-                # The next nodes' needs too, one per worker: they are likely to come next.
-                for _, _, other in heapq.nsmallest(self._workers, heap):
+                # The next nodes' needs too: they are likely to come next. A fixed batch (not
+                # one per worker) keeps the search, and the plan it picks among equal optima,
+                # the same whatever the number of workers.
+                for _, _, other in heapq.nsmallest(BATCH, heap):
                     need += self.missing(other)
-                self.fetch((k, True) for k in need[: max(self._workers, 1)])
+                self.fetch((k, True) for k in need[:BATCH])
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
             self.stats.nodes += 1
