@@ -219,3 +219,17 @@ def test_search_matches_the_monolithic_optimum_mid_carry(rule: int) -> None:
             if mono.status.has_solution:
                 assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9), (k, T)
                 break
+
+
+def test_the_plan_does_not_depend_on_the_number_of_workers() -> None:
+    """Among equal optima the search picks one by its own order, not by thread timing: sweeps run
+    with one worker per process must reproduce the plans of a run with two."""
+    s = random_scene(5)
+    spec = specification(s, [0, 1, 2])
+    T = first_feasible(s, spec).horizon
+    plans = []
+    for workers in (1, 2):
+        w = dataclasses.replace(s, solver=dataclasses.replace(s.solver, workers=workers))
+        plans.append(search_step(w, State.initial(s), spec, T).trajectory)
+    for a, b in zip(plans[0].arrays(), plans[1].arrays(), strict=True):
+        np.testing.assert_array_equal(a, b)
