@@ -115,17 +115,20 @@ def _out_of_budget(signum, frame):
     raise RunBudgetExceeded
 
 
+def step_starts(result):
+    """Each sequential step of a plan with the state it started from."""
+    k = 0
+    for seg in result.segments:
+        yield seg, State.at(result.trajectory, k)
+        k += seg.horizon
+
+
 def predicted_horizons(scenario, result) -> list[int]:
     """predictT of each sequential step, from the state the step started in: the horizon the
     planner tried first (the horizons between it and the accepted one were infeasible or timed
     out)."""
-    t = result.trajectory
-    out, k = [], 0
-    for seg in result.segments:
-        state = State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k], t.grasp[k])
-        out.append(predict_horizon(scenario, state, specification(scenario, seg.objects)))
-        k += seg.horizon
-    return out
+    return [predict_horizon(scenario, state, specification(scenario, seg.objects))
+            for seg, state in step_starts(result)]
 
 
 def step_records(scenario, result, segments) -> list[dict]:
@@ -179,16 +182,11 @@ def compare_steps(scenario, result, steps: list[dict]) -> None:
     """The monolithic MILP of each step from the same state and horizon: its optimum next to
     ours (``monolithic_cost``, ``monolithic_status``). Whole plans can differ where a step has
     several optimal plans, so the optima are compared step by step."""
-    t = result.trajectory
-    k = 0
-    for step, seg in zip(steps, result.segments, strict=True):
-        state = State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k],
-                      t.grasp[k])
+    for step, (seg, state) in zip(steps, step_starts(result), strict=True):
         mono = solve_step(scenario, state, specification(scenario, seg.objects), seg.horizon)
         step["monolithic_status"] = mono.status.value
         step["monolithic_cost"] = mono.cost if mono.status.has_solution else None
         step["monolithic_time_s"] = mono.solve_time_s + mono.build_time_s
-        k += seg.horizon
 
 
 def run_all(tasks: list[dict], workers: int):

@@ -10,6 +10,7 @@ skeleton search through the same class.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -112,7 +113,11 @@ class HorizonProgram:
         program.add_system_constraints(self.prog, x, self.model)
         program.add_goal_atoms(self.prog, x, self.model, reach)
         self._hand_cost = program.add_cost(self.prog, x, scenario.state_weight)
-        self.form = standard_form(self.prog)
+
+    @functools.cached_property
+    def form(self) -> StandardForm:
+        """The model in standard form (read once, for HiGHS; Drake's solvers take ``prog``)."""
+        return standard_form(self.prog)
 
     def encode(self, prog: MathematicalProgram, spec: Specification) -> None:
         """Add ``spec`` (φ_task and the rules) to ``prog``, whose first variables are ours."""

@@ -81,10 +81,14 @@ class State:
         )
 
     @staticmethod
-    def last(trajectory: Trajectory) -> State:
+    def at(trajectory: Trajectory, k: int) -> State:
+        """The state at step ``k`` of ``trajectory``."""
         t = trajectory
-        return State(t.hand_pos[-1], t.hand_vel[-1], t.object_pos[-1], t.object_vel[-1],
-                     t.grasp[-1])
+        return State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k], t.grasp[k])
+
+    @staticmethod
+    def last(trajectory: Trajectory) -> State:
+        return State.at(trajectory, -1)
 
     def select(self, objects: list[int]) -> State:
         """The state restricted to the given objects (hands unchanged)."""

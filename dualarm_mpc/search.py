@@ -36,10 +36,10 @@ from __future__ import annotations
 
 import heapq
 import itertools
-import threading
 import time
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -63,6 +63,7 @@ from dualarm_mpc.ltl import (
     Until,
     WeakNext,
     atoms,
+    conj,
 )
 from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Box, State, simulate, violations
 from dualarm_mpc.scenario import Scenario
@@ -156,14 +157,10 @@ def restricted(spec: Specification, targets: Iterable[int], keep: Iterable[int])
     step = {j + 1 for j in spec.objects}
     allowed = {j + 1 for j in keep}
     rules = tuple(
-        (name, _conj([i for i in instances(f) if (objects_of(i) & step) <= allowed]))
+        (name, conj(i for i in instances(f) if (objects_of(i) & step) <= allowed))
         for name, f in spec.rules
     )
     return replace(spec, targets=targets, m_o=len(targets), task_form="counting", rules=rules)
-
-
-def _conj(items: list[Formula]) -> Formula:
-    return TRUE if not items else items[0] if len(items) == 1 else And(tuple(items))
 
 
 # --- the search --------------------------------------------------------------------------------
@@ -186,15 +183,11 @@ class Node:
 
 @dataclass
 class SearchStats:
-    """What the search did, for the plan JSON and the benches."""
+    """What the search did."""
 
-    nodes: int = 0
     relaxations: int = 0  # one-hand and one-object programs solved
-    joint: int = 0  # joint node programs solved
-    composed: int = 0  # nodes closed by putting the one-hand solutions together
-    cpu_time_s: float = 0.0
-    solver_time_s: float = 0.0
-    timed_out: bool = False
+    cpu_time_s: float = 0.0  # of run(), every worker thread included
+    timed_out: bool = False  # out of time or interrupted: the result is undecided
 
 
 @dataclass
@@ -212,9 +205,9 @@ class StepSearch:
 
     def __post_init__(self) -> None:
         self._relax: dict[tuple, StepResult] = {}
-        self._lock = threading.Lock()
         self._exact: set = set()  # keys of the relaxations solved to optimality
         self._witness: StepResult | None = None  # a plan the feasibility pass found
+        self._deliveries: list[tuple[tuple[int, ...], frozenset[int]]] | None = None
         self._deadline = time.perf_counter() + self.options.time_limit_s
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
                                        self.horizon)
@@ -237,11 +230,8 @@ class StepSearch:
         options = replace(self.options, time_limit_s=remaining)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
-        res = self._program.solve(spec, options, start, allowed=allowed, hands=hands,
-                                  grasp=grasp, floor=floor)
-        with self._lock:
-            self.stats.solver_time_s += res.solve_time_s
-        return res
+        return self._program.solve(spec, options, start, allowed=allowed, hands=hands,
+                                   grasp=grasp, floor=floor)
 
     def _mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
         allowed = np.zeros((N_HANDS, len(self.spec.objects)), bool)
@@ -308,7 +298,6 @@ class StepSearch:
                  for i in range(N_HANDS) if h in (i, BOTH)]
         pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
         floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
-        self.stats.joint += 1
         return self._solve(self._node_spec(node), self._mask(pairs), start=start, floor=floor,
                            exact=exact)
 
@@ -347,8 +336,7 @@ class StepSearch:
         parts = [self.hand(i, node.share(i), exact) for i in range(N_HANDS)]
         force = np.stack([parts[i].trajectory.force[:, i] for i in range(N_HANDS)], axis=1)
         grasp = np.stack([parts[i].trajectory.grasp[:, i] for i in range(N_HANDS)], axis=1)
-        local_state = self.state.select(list(self.spec.objects))
-        traj = simulate(self._model, local_state, force, grasp)
+        traj = simulate(self._model, self._program.local_state, force, grasp)
         if self._feasible(traj):
             status = (Status.OPTIMAL if all(p.status is Status.OPTIMAL for p in parts)
                       else Status.FEASIBLE)
@@ -398,24 +386,30 @@ class StepSearch:
         (:meth:`handed_over_objects` says which objects get the label BOTH). Without hand-over
         labels for every object, the search is exact over the plans in which each object is
         held by one hand at most; with them (``always``), against the monolithic MILP."""
+        if self._deliveries is None:  # D and its free objects, for every D
+            self._deliveries = []
+            for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
+                quiet = untouchable(self.spec, self.state, delivered)
+                self._deliveries.append((delivered, frozenset(
+                    j for j in self.spec.objects if j not in delivered and j not in quiet)))
         both = self.handed_over_objects() if handed_over else set()
-        out = []
-        for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
-            quiet = untouchable(self.spec, self.state, delivered)
-            free = frozenset(j for j in self.spec.objects if j not in delivered and j not in quiet)
-            labels = [(0, 1, BOTH) if j in both else (0, 1) for j in delivered]
-            out += [Node(delivered, hands, free) for hands in itertools.product(*labels)]
-        return out
+        return [Node(delivered, hands, free) for delivered, free in self._deliveries
+                for hands in itertools.product(*[(0, 1, BOTH) if j in both else (0, 1)
+                                                 for j in delivered])]
+
+    def _probe_order(self):
+        """The nodes as the feasibility checks visit them: one hand per object first, then
+        hand-overs (which need every single-hand relaxation to know which objects get them)."""
+        yield from self.nodes(handed_over=False)
+        yield from (n for n in self.nodes() if n.handed_over)
 
     def feasible(self) -> bool:
         """Whether the horizon admits a plan, decided with feasibility probes (first solutions,
         no optimality): a node is feasible when its relaxations are and its hands' plans fit
         together or its joint program has a solution. Infeasible relaxations found here serve
         the optimization too, and a plan found is its first incumbent."""
-        single = self.nodes(handed_over=False)
-        nodes = itertools.chain(single, (n for n in self.nodes() if n.handed_over))
         undecided = False
-        for n, node in enumerate(nodes):
+        for n, node in enumerate(self._probe_order()):
             if n == 1:  # past the first guess, most singles will be needed: all at once
                 self.fetch((("hand", i, (j,)), False)
                            for j in self.spec.objects for i in range(N_HANDS))
@@ -454,8 +448,7 @@ class StepSearch:
         """Whether the relaxations alone prove that the horizon has no plan: every node has an
         infeasible one. Stops at the first node that they cannot rule out (a cheap check: no
         joint program is solved)."""
-        single = self.nodes(handed_over=False)
-        for node in itertools.chain(single, (n for n in self.nodes() if n.handed_over)):
+        for node in self._probe_order():
             if self._relaxations_feasible(node) is not False:
                 return False
         return True
@@ -468,7 +461,6 @@ class StepSearch:
         lb = self.bound(node)
         composed = self.compose(node)
         if composed is not None and composed.cost <= lb * (1 + self.options.mip_rel_gap) + 1e-9:
-            self.stats.composed += 1
             return composed
         if composed is not None and composed.solution is not None:
             res = self.joint(node, start=lambda x, v=composed.solution: v)
@@ -512,7 +504,6 @@ class StepSearch:
                 self.fetch((k, True) for k in need[:BATCH])
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
-            self.stats.nodes += 1
             res = self.evaluate(node)
             if res.status.has_solution and (best is None or res.cost < best.cost):
                 best = res
@@ -521,9 +512,11 @@ class StepSearch:
         open_bound = min([undecided] + [self.bound(n) for _, _, n in heap])
         self.stats.cpu_time_s = time.process_time() - cpu0
         wall = time.perf_counter() - t0
-        return self._result(best, open_bound, wall)
+        return self.result(best, open_bound, wall)
 
-    def _result(self, best: StepResult | None, open_bound: float, wall: float) -> StepResult:
+    def result(self, best: StepResult | None, open_bound: float, wall: float) -> StepResult:
+        """The horizon's result: ``best`` with the status and gap its ``open_bound`` allows, or
+        no plan (infeasible when the bound is infinite, else undecided)."""
         binaries = 3 * (self.horizon + 1) * len(self.spec.objects)
         if best is None:
             status = Status.INFEASIBLE if np.isinf(open_bound) else Status.TIME_LIMIT
@@ -549,14 +542,21 @@ def _bound(res: StepResult) -> float:
     return max(res.bound, 0.0) if np.isfinite(res.bound) else 0.0
 
 
+@contextmanager
+def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
+               options: SolveOptions | None):
+    """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
+    options = options or solver_options(scenario)
+    with ThreadPoolExecutor(scenario.solver.workers) as pool:
+        yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool)
+
+
 def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
                       time_limit_s: float) -> bool:
     """Whether the one-hand and one-object relaxations prove that ``horizon`` has no plan
     (within ``time_limit_s``; False when they cannot tell)."""
     options = replace(solver_options(scenario), time_limit_s=time_limit_s)
-    with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover,
-                            pool)
+    with _searching(scenario, state, spec, horizon, options) as search:
         return search.ruled_out()
 
 
@@ -564,10 +564,7 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
                      options: SolveOptions | None = None) -> Status:
     """Whether ``horizon`` admits a plan (the feasibility pass alone): ``FEASIBLE``,
     ``INFEASIBLE``, or ``TIME_LIMIT`` when the time limit left it undecided."""
-    options = options or solver_options(scenario)
-    with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover,
-                            pool)
+    with _searching(scenario, state, spec, horizon, options) as search:
         found = search.feasible()
     if search.stats.timed_out:
         return Status.TIME_LIMIT
@@ -577,14 +574,9 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`."""
-    options = options or solver_options(scenario)
     t0 = time.perf_counter()
-    with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        search = StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover,
-                            pool)
+    with _searching(scenario, state, spec, horizon, options) as search:
         if not search.feasible():
-            return StepResult(Status.INFEASIBLE, horizon, None, np.inf,
-                              time.perf_counter() - t0, 0.0, np.inf,
-                              3 * (horizon + 1) * len(spec.objects), None, bound=np.inf)
+            return search.result(None, np.inf, time.perf_counter() - t0)
         res = search.run()
     return replace(res, solve_time_s=time.perf_counter() - t0)

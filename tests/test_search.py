@@ -211,7 +211,7 @@ def test_search_matches_the_monolithic_optimum_mid_carry(rule: int) -> None:
     held = [k for k in range(1, len(t.grasp) - 1) if t.grasp[k].any()]
     assert held, "the plan carries an object"
     for k in held[:3]:
-        state = State(t.hand_pos[k], t.hand_vel[k], t.object_pos[k], t.object_vel[k], t.grasp[k])
+        state = State.at(t, k)
         for T in range(1, 16):
             mono = solve_step(s, state, spec, T)
             found = search_step(s, state, spec, T)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field
@@ -38,7 +39,7 @@ from dualarm_mpc.plan import TimedTrajectory
 from dualarm_mpc.planner import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import Interrupt, SolveOptions, Status
-from dualarm_mpc.spec import rule_formulas, specification
+from dualarm_mpc.spec import Specification, rule_formulas, specification
 from dualarm_mpc.systems.interpolator import empty_plan, sample_grasp
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
@@ -175,7 +176,7 @@ class MpcPlanner(LeafSystem):
         periods), or stop it while the robot moves (its start state is gone by then)."""
         if self._pending is not None:
             job, future = self._pending
-            if job.goals != s.goals or not self._still(job, measured):
+            if job.scenario.goals != s.goals or not self._still(job, measured):
                 self._abandon()  # the world moved on: plan afresh below
             elif not _wait(future, self._budget_s):
                 return self._record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
@@ -248,7 +249,7 @@ class MpcPlanner(LeafSystem):
         changes = dict(delivered_time=delivered_time, step_objects=tuple(objects),
                        step_target=target)
         options = dataclasses.replace(self._options, interrupt=Interrupt())
-        return _Job(sc, state, spec, objects, start, options, idle, s.goals, changes)
+        return _Job(sc, state, spec, start, options, idle, changes)
 
     @staticmethod
     def _solve(job: _Job) -> StepResult | None:
@@ -274,11 +275,12 @@ class MpcPlanner(LeafSystem):
             status = res.status.value if res else "no_horizon"
             return self._record(s, t, wall0, status, res, note="kept the previous plan",
                                 **job.changes)
-        traj = embed_step(sc, job.state, job.objects, res.trajectory)
+        objects = list(job.spec.objects)
+        traj = embed_step(sc, job.state, objects, res.trajectory)
         plan = TimedTrajectory(t, sc.dt, traj)
         return self._record(s, t, wall0, res.status.value, res, plan=plan,
                             horizon_end=t + res.horizon * sc.dt,
-                            grasp_start=(tuple(job.objects), res.trajectory.grasp),
+                            grasp_start=(tuple(objects), res.trajectory.grasp),
                             **job.changes)
 
     def _still(self, job: _Job, measured: np.ndarray) -> bool:
@@ -363,14 +365,12 @@ SEARCHING = "over budget: the robot waits at rest while the search goes on"
 class _Job:
     """One replan's search: what to solve, from which state, and how to stop it."""
 
-    scenario: Scenario
+    scenario: Scenario  # with the goals the replan saw
     state: State
-    spec: object  # spec.Specification
-    objects: list[int]
-    start: object  # MIP start for the monolithic MILP, or None
+    spec: Specification
+    start: Callable | None  # MIP start for the monolithic MILP
     options: SolveOptions  # with the Interrupt that stops it
     idle: bool  # the robot rests with no plan left: a late result still applies
-    goals: dict[str, list[float]]
     changes: dict  # the bookkeeping to record with the replan
 
 
