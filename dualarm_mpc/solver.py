@@ -9,6 +9,7 @@ instead. This module knows nothing of LTL or robots.
 from __future__ import annotations
 
 import enum
+import functools
 import logging
 import threading
 import time
@@ -16,7 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
-from pydrake.solvers import MathematicalProgram, SolverOptions
+from pydrake.solvers import LinearConstraint, LinearCost, MathematicalProgram, SolverOptions
 from pydrake.symbolic import Variable
 
 log = logging.getLogger(__name__)
@@ -122,12 +123,18 @@ class StandardForm:
 
 
 def standard_form(prog: MathematicalProgram) -> StandardForm:
-    """Read ``prog`` (linear costs and constraints only) into sparse matrices."""
+    """Read ``prog`` (linear costs and constraints only) into sparse matrices; anything else is
+    refused with its kind, never dropped."""
     n = prog.num_vars()
-    unsupported = (prog.quadratic_costs() or prog.generic_constraints() or prog.generic_costs()
-                   or prog.lorentz_cone_constraints() or prog.quadratic_constraints())
+    # Bounding boxes and linear equalities are LinearConstraints too: all read below.
+    unsupported = sorted(
+        {type(b.evaluator()).__name__ for b in prog.GetAllCosts()
+         if not isinstance(b.evaluator(), LinearCost)}
+        | {type(b.evaluator()).__name__ for b in prog.GetAllConstraints()
+           if not isinstance(b.evaluator(), LinearConstraint)})
     if unsupported:
-        raise ValueError("the HiGHS adapter accepts linear costs and linear constraints only")
+        raise ValueError(f"the HiGHS adapter accepts linear costs and linear constraints only, "
+                         f"not {', '.join(unsupported)}")
     c = np.zeros(n)
     c0 = 0.0
     for b in prog.linear_costs():
@@ -171,13 +178,27 @@ def solve(prog: MathematicalProgram, options: SolveOptions = SolveOptions(),
     return solve_standard_form(standard_form(prog), options, start)
 
 
-def solve_standard_form(f: StandardForm, options: SolveOptions,
-                        start: Start | None = None) -> SolveResult:
+@functools.cache
+def _quiet_highs() -> type:
+    """highspy's ``Highs`` that never prints: its constructor registers callbacks, the first
+    HiGHS call that logs, so the banner reached stdout (once per process) before any option
+    could be set."""
     import highspy  # local: the adapter is the only place that knows the solver
 
+    class QuietHighs(highspy.Highs):
+        def enableCallbacks(self) -> None:
+            self.setOptionValue("output_flag", False)
+            super().enableCallbacks()
+
+    return QuietHighs
+
+
+def solve_standard_form(f: StandardForm, options: SolveOptions,
+                        start: Start | None = None) -> SolveResult:
+    import highspy
+
     t0 = time.perf_counter()
-    h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
+    h = _quiet_highs()()
     h.setOptionValue("time_limit", float(options.time_limit_s))
     h.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
     h.setOptionValue("threads", int(options.threads))
@@ -267,15 +288,61 @@ def _solve_with_drake(prog, options: SolveOptions, start) -> SolveResult:
             "use backend 'highs'"
         )
     opts = SolverOptions()
-    if options.backend == "gurobi":
-        opts.SetOption(solver.solver_id(), "TimeLimit", options.time_limit_s)
-        opts.SetOption(solver.solver_id(), "MIPGap", options.mip_rel_gap)
-        opts.SetOption(solver.solver_id(), "Threads", options.threads)
+    names = {"gurobi": ("TimeLimit", "MIPGap", "Threads"),
+             "mosek": ("MSK_DPAR_OPTIMIZER_MAX_TIME", "MSK_DPAR_MIO_TOL_REL_GAP",
+                       "MSK_IPAR_NUM_THREADS")}[options.backend]
+    for name, value in zip(names, (float(options.time_limit_s), float(options.mip_rel_gap),
+                                   int(options.threads)), strict=True):
+        opts.SetOption(solver.solver_id(), name, value)
     t0 = time.perf_counter()
     result = solver.Solve(prog, start, opts)
-    wall = time.perf_counter() - t0
-    if result.is_success():
-        return SolveResult(Status.OPTIMAL, result.get_optimal_cost(), result.get_optimal_cost(),
-                           0.0, wall, result.GetSolution(prog.decision_variables()))
-    return SolveResult(Status.INFEASIBLE, np.inf, np.inf, np.inf, wall, None,
-                       str(result.get_solution_result()))
+    return drake_result(options, result, prog.decision_variables(), time.perf_counter() - t0)
+
+
+# Gurobi's optimization status codes. Drake passes a solution back for OPTIMAL and SUBOPTIMAL
+# only: stopped at a limit, Gurobi's incumbent is lost, so the result is TIME_LIMIT.
+_GUROBI = {2: Status.OPTIMAL, 3: Status.INFEASIBLE, 4: Status.UNBOUNDED, 5: Status.UNBOUNDED,
+           7: Status.TIME_LIMIT, 8: Status.TIME_LIMIT, 9: Status.TIME_LIMIT,
+           10: Status.TIME_LIMIT, 11: Status.TIME_LIMIT, 13: Status.FEASIBLE,
+           16: Status.TIME_LIMIT}
+# MOSEK's solution status codes (MSKsolstae). For a MIP, PRIM_FEAS is an incumbent where the
+# search stopped early (Drake calls it "solution found"); UNKNOWN is either a limit without an
+# incumbent or an infeasible MIP, which Drake does not tell apart (it keeps MOSEK's problem
+# status to itself): see drake_result.
+_MOSEK = {1: Status.OPTIMAL, 9: Status.OPTIMAL, 2: Status.FEASIBLE, 4: Status.FEASIBLE,
+          5: Status.INFEASIBLE, 6: Status.UNBOUNDED}
+
+
+def drake_result(options: SolveOptions, result, variables, wall: float) -> SolveResult:
+    """A Drake MathematicalProgramResult of Gurobi or MOSEK as a :class:`SolveResult`, with the
+    solver's own status: optimal (within ``mip_rel_gap``), stopped with an incumbent and its
+    gap, stopped at the time limit, infeasible, unbounded, or an error."""
+    details = result.get_solver_details()
+    if options.backend == "gurobi":
+        code = details.optimization_status
+        status = _GUROBI.get(code, Status.ERROR) if not details.error_code else Status.ERROR
+        message = f"Gurobi status {code}, error code {details.error_code}"
+        bound = float(details.objective_bound)
+    else:
+        code = details.solution_status
+        status = _MOSEK.get(code, Status.ERROR) if details.rescode == 0 else Status.ERROR
+        if code == 0 and details.rescode == 0:
+            # Stopped by the time limit, or an infeasible MIP that we cannot prove so.
+            status = (Status.TIME_LIMIT if wall >= 0.99 * options.time_limit_s else Status.ERROR)
+        message = f"MOSEK solution status {code}, response code {details.rescode}"
+        bound = np.nan  # MOSEK's MIP bound does not come through Drake
+    x = np.asarray(result.GetSolution(variables), float) if status.has_solution else None
+    if x is not None and not np.isfinite(x).all():
+        status, x = Status.ERROR, None
+        message += ", no finite solution"
+    objective = float(result.get_optimal_cost()) if status.has_solution else np.inf
+    if status is Status.OPTIMAL:
+        bound, gap = (objective if np.isnan(bound) else bound), 0.0
+    elif status is Status.FEASIBLE:
+        gap = (abs(objective - bound) / max(abs(objective), 1e-10) if np.isfinite(bound)
+               else np.inf)
+        bound = bound if np.isfinite(bound) else -np.inf
+    else:
+        bound = {Status.INFEASIBLE: np.inf}.get(status, -np.inf)
+        gap = np.inf
+    return SolveResult(status, objective, bound, gap, wall, x, message)
