@@ -29,6 +29,7 @@ from typing import ClassVar
 __all__ = [
     "FALSE",
     "KEYWORDS",
+    "MAX_DEPTH",
     "TRUE",
     "Always",
     "And",
@@ -358,14 +359,22 @@ def _to_text(f: Formula, min_prec: int) -> str:
 # Parser
 
 
+MAX_DEPTH = 50  # nesting of operators and parentheses; far beyond any rule, well within the stack
+WINDOW = 40  # characters shown on either side of a syntax error in a long formula
+
+
 class LTLSyntaxError(ValueError):
-    """A parse error at 0-based character offset ``position`` of ``text``."""
+    """A parse error at 0-based character offset ``position`` of ``text``; the message shows the
+    text (a window around the position, if long) with a caret under it."""
 
     def __init__(self, message: str, text: str, position: int) -> None:
         self.text = text
         self.position = position
-        shown = text.replace("\t", " ").replace("\n", " ").replace("\r", " ")
-        super().__init__(f"column {position}: {message}\n  {shown}\n  {' ' * position}^")
+        start, end = max(0, position - WINDOW), min(len(text), position + WINDOW)
+        shown = ("..." if start else "") + text[start:end] + ("..." if end < len(text) else "")
+        shown = re.sub(r"\s", " ", shown)
+        caret = position - start + (3 if start else 0)
+        super().__init__(f"column {position}: {message}\n  {shown}\n  {' ' * caret}^")
 
 
 @dataclass(frozen=True, slots=True)
@@ -412,6 +421,7 @@ class _Parser:
         self.text = text
         self.tokens = _tokenize(text)
         self.i = 0
+        self.depth = 0
 
     @property
     def tok(self) -> _Token:
@@ -444,9 +454,20 @@ class _Parser:
             raise self.error(what)
         return f
 
+    def deeper(self, tok: _Token, parse: Callable[[], Formula]) -> Formula:
+        """``parse()`` one level of nesting deeper; past ``MAX_DEPTH`` a syntax error at ``tok``
+        (the recursion would otherwise end in a RecursionError)."""
+        self.depth += 1
+        if self.depth > MAX_DEPTH:
+            raise LTLSyntaxError(f"nested deeper than {MAX_DEPTH} levels", self.text, tok.pos)
+        f = parse()
+        self.depth -= 1
+        return f
+
     def implies(self) -> Formula:
         lhs = self.disjunction()
-        return Implies(lhs, self.implies()) if self.accept("->") else lhs
+        op = self.accept("->")
+        return Implies(lhs, self.deeper(op, self.implies)) if op else lhs
 
     def disjunction(self) -> Formula:
         args = [self.conjunction()]
@@ -465,16 +486,16 @@ class _Parser:
         op = self.accept("U", "R")
         if op is None:
             return lhs
-        return (Until if op.text == "U" else Release)(lhs, self.binary_temporal())
+        return (Until if op.text == "U" else Release)(lhs, self.deeper(op, self.binary_temporal))
 
     def unary(self) -> Formula:
         op = self.accept(*_UNARY_OPS)
-        return _UNARY_OPS[op.text](self.unary()) if op else self.primary()
+        return _UNARY_OPS[op.text](self.deeper(op, self.unary)) if op else self.primary()
 
     def primary(self) -> Formula:
         tok = self.tok
         if self.accept("("):
-            f = self.implies()
+            f = self.deeper(tok, self.implies)
             self.expect(")")
             return f
         if self.accept("true"):

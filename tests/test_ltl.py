@@ -10,6 +10,7 @@ from strategies import formulas, traces
 from dualarm_mpc.evaluate import truth_table
 from dualarm_mpc.ltl import (
     FALSE,
+    MAX_DEPTH,
     TRUE,
     WX,
     Always,
@@ -194,6 +195,35 @@ def test_syntax_errors_name_the_position(text: str, position: int, fragment: str
     message = str(err)
     assert f"column {position}: " in message and fragment in message
     assert message.splitlines()[-1] == "  " + " " * position + "^"
+
+
+@pytest.mark.parametrize(
+    "text",
+    ["(" * 300 + "a" + ")" * 300, "!" * 3000 + "a", "G " * 500 + "a", " U ".join("a" * 500),
+     " -> ".join("a" * 500), "X(" * 400 + "a" + ")" * 400],
+)
+def test_deep_nesting_is_a_syntax_error_not_a_recursion_error(text: str) -> None:
+    with pytest.raises(LTLSyntaxError, match=f"nested deeper than {MAX_DEPTH} levels"):
+        parse(text)
+
+
+def test_nesting_up_to_the_limit_parses_and_round_trips() -> None:
+    f = parse("(" * MAX_DEPTH + "a" + ")" * MAX_DEPTH)
+    assert f == Atom("a")
+    g = parse("!" * MAX_DEPTH + "a")
+    assert parse(str(g)) == g
+
+
+def test_an_error_in_a_long_formula_shows_a_window_around_it() -> None:
+    """Not the whole text: a window of it with the caret under the offending token."""
+    text = " & ".join(f"G eta[1,{j}]" for j in range(200)) + " & $ & " + "F theta[1] & " * 100
+    position = text.index("$")
+    with pytest.raises(LTLSyntaxError) as info:
+        parse(text)
+    *_, shown, caret = str(info.value).splitlines()
+    assert info.value.position == position
+    assert len(shown) < 100 and shown.strip().startswith("...") and shown.endswith("...")
+    assert shown[caret.index("^")] == "$"
 
 
 # --- NNF ------------------------------------------------------------------------------------------
