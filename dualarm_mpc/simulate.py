@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from pydrake.math import RigidTransform
@@ -22,6 +23,7 @@ from dualarm_mpc.diagram import MakeDiagram
 from dualarm_mpc.mld import Box
 from dualarm_mpc.scenario import Event, Scenario
 from dualarm_mpc.systems.planner import REST_SPEED, Replan
+from dualarm_mpc.systems.state_estimator import split_measured_state
 
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
 # object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
@@ -63,6 +65,30 @@ class Summary:
         Path(path).write_text(json.dumps(self.to_json(), indent=1))
 
 
+@dataclass(frozen=True)
+class World:
+    """What a :class:`Disturbance` sees when it looks: the measured hands and objects, what the
+    gripper holds now, and the goals and deliveries as the planner last counted them."""
+
+    t: float
+    hand_pos: np.ndarray  # (2, 2)
+    object_pos: np.ndarray  # (N, 2)
+    object_vel: np.ndarray  # (N, 2)
+    grasp: np.ndarray  # (2, N) bool: attached in the gripper now
+    goals: dict[str, list[float]]
+    delivered: np.ndarray  # (N,) bool: resting in its goal at the planner's last replan
+
+
+class Disturbance(Protocol):
+    """Environment events decided while the run goes on (e.g. "knock the object in the hand"),
+    next to the scenario's fixed ``events``. The simulation looks at ``next_time()`` (None: no
+    more) and calls the disturbance there; each call must move ``next_time()`` on."""
+
+    def next_time(self) -> float | None: ...
+
+    def __call__(self, world: World) -> list[Event]: ...
+
+
 def default_duration(scenario: Scenario) -> float:
     """Long enough for the sequential steps with room for replanning."""
     return 30.0 + 15.0 * scenario.n_objects * scenario.dt
@@ -78,6 +104,8 @@ def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
         z = plant.EvalBodyPoseInWorld(pc, body).translation()[2]
         plant.SetFreeBodyPose(pc, body, RigidTransform([*event.position, z]))
         plant.SetFreeBodySpatialVelocity(pc, body, SpatialVelocity.Zero())
+        gripper = dual.stack.gripper  # out of the hand: else the grip pulls it straight back
+        gripper.detach(gripper.GetMyMutableContextFromRoot(context), j)
     else:
         dual.planner.set_goal(dual.planner.GetMyMutableContextFromRoot(context), event.target,
                               event.box)
@@ -86,8 +114,10 @@ def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
 
 
 def simulate(scenario: Scenario, duration: float | None = None, html: str | Path | None = None,
-             progress: Callable[[Replan], None] | None = None) -> Summary:
-    """Run the closed loop; write the Meshcat replay to ``html`` if given."""
+             progress: Callable[[Replan], None] | None = None,
+             disturb: Disturbance | None = None) -> Summary:
+    """Run the closed loop; write the Meshcat replay to ``html`` if given. ``disturb`` adds
+    events decided during the run; the summary lists them after the scenario's."""
     duration = default_duration(scenario) if duration is None else duration
     meshcat = recording.start_meshcat() if html else None
     dual = MakeDiagram(scenario, meshcat)
@@ -100,6 +130,7 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     wall0 = time.perf_counter()
     simulator.Initialize()
     seen = 0
+    applied: list[Event] = []
     finished_at = None
     t = 0.0
     while t < duration - 1e-9:
@@ -108,6 +139,14 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
             if t < e.time <= stop:
                 simulator.AdvanceTo(e.time)
                 _apply(e, scenario, dual, context, meshcat)
+        while disturb is not None and (look := disturb.next_time()) is not None and look <= stop:
+            simulator.AdvanceTo(max(look, context.get_time()))
+            for e in disturb(_world(dual, context)):
+                _apply(e, scenario, dual, context, meshcat)
+                applied.append(e)
+            after = disturb.next_time()
+            if after is not None and after <= look:
+                raise ValueError(f"disturb: next_time() stayed at {after} after a call")
         simulator.AdvanceTo(stop)
         t = stop
         replans = dual.planner.mpc_state(planner_context).replans
@@ -115,7 +154,8 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
             if progress:
                 progress(r)
         seen = len(replans)
-        pending = [e for e in events if e.time > t]
+        pending = [e for e in events if e.time > t] or (
+            disturb is not None and disturb.next_time() is not None)
         if (replans and replans[-1].status in ("done", "stuck") and not pending
                 and _all_still(dual, context)):
             finished_at = finished_at if finished_at is not None else t
@@ -127,7 +167,17 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     dual.planner.close()
     if meshcat is not None:
         recording.save_recording(meshcat, html)
-    return _summary(scenario, dual, context, t, wall)
+    return _summary(scenario, dual, context, t, wall, applied)
+
+
+def _world(dual, context) -> World:
+    m = split_measured_state(dual.stack.estimator.get_measured_state_output_port().Eval(
+        dual.stack.estimator.GetMyContextFromRoot(context)), dual.station.n_objects)
+    s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
+    return World(t=context.get_time(), hand_pos=m["hand_pos"].copy(),
+                 object_pos=m["object_pos"].copy(), object_vel=m["object_vel"].copy(),
+                 grasp=m["grasp"] > 0.5, goals={k: list(v) for k, v in s.goals.items()},
+                 delivered=np.array([d is not None for d in s.delivered_time], bool))
 
 
 def _all_still(dual, context) -> bool:
@@ -137,7 +187,8 @@ def _all_still(dual, context) -> bool:
                < REST_SPEED for b in dual.station.objects)
 
 
-def _summary(scenario: Scenario, dual, context, t: float, wall: float) -> Summary:
+def _summary(scenario: Scenario, dual, context, t: float, wall: float,
+             applied: list[Event] = ()) -> Summary:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
     s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
@@ -161,7 +212,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float) -> Summar
         sim_time_s=round(t, 3),
         wall_time_s=round(wall, 3),
         all_delivered=all(resting),
-        events=[e.__dict__ for e in scenario.events],
+        events=[e.__dict__ for e in [*scenario.events, *applied]],
         replans_over_budget=[round(r.t, 3) for r in s.replans
                              if r.status in ("searching", "over_budget")],
     )

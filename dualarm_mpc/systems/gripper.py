@@ -139,6 +139,15 @@ class Gripper(LeafSystem):
     def get_grasp_output_port(self):
         return self._grasp
 
+    def detach(self, context, j: int) -> None:
+        """Let go of object j at once (an environment event knocked it out of the hand): without
+        this the spring pulls a moved object straight back into the hand. It attaches again only
+        under the usual conditions (commanded, hand inside its grasp box, at its height)."""
+        state = context.get_mutable_discrete_state(self._state)
+        x = state.get_value().copy()
+        x[j : 2 * self._n : self._n] = 0.0  # pairs (0, j) and (1, j)
+        state.SetFromVector(x)
+
     def _split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n2 = 2 * self._n
         return x[:n2], x[n2:].reshape(n2, 2)

@@ -1,0 +1,632 @@
+"""Robustness of the closed loop on §V-D: seeded random disturbances, and what still gets delivered.
+
+What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
+[-0.25, 0.25]² from the seed, reachable goals, its default (m_o, n_o)) with the robot's settings
+(:func:`dualarm_mpc.simulate.on_robot`) runs closed loop while a :class:`Disturbances` generator
+disturbs it, once per kind by default (``--per-kind``):
+
+* ``held`` — an object is knocked out of the hand that carries it (the gripper lets go);
+* ``delivered`` — an object resting in its goal is knocked out of it;
+* ``table`` — any object is knocked to a uniformly random place on the table top;
+* ``goal`` — a goal is moved to a random free place inside the hands' range (same size).
+
+Each disturbance is due at a random time; ``held`` and ``delivered`` then wait (looking every
+0.5 s) until an object is held / rests in its goal, and are skipped (and counted) if none is
+within 40 s. Knocks move an object by 0.10–0.35 m in a random direction (``held``,
+``delivered``; out of its goal for the latter) or anywhere on the table (``table``); every knock
+lands on the table top, at least 2 cm clear of every other object and of both hands' grasp boxes,
+and leaves the object at rest. A moved goal stays inside the hand range and the table, 2 cm clear
+of the other goals, covers no object of another goal and moves by at least 0.2 m.
+
+Randomness: one RNG per run, ``numpy.random.SeedSequence([7, seed])`` (apart from the objects'
+own draw from ``seed``); each disturbance draws from its own child of it, so one disturbance's
+draws never shift another's. Both rules of a seed get the same disturbances (kinds, due times,
+distances, directions). Which object a knock hits is read from the simulated state when it
+fires; the replan budget is wall time, so a run that diverges (another machine, another load)
+may hit another object at the same time.
+
+**Stuck** (decided from the model's bounds at each event, never from how the run ended): an
+object is stuck when, where a knock left it, or where it rests when its goal moves, no plan
+within the model can deliver it and it is not in its goal. That is, no hand can grasp it (outside
+the hand range — per hand, with eq. (16)'s gap — widened by its grasp half-size H_ij); or, under
+rule 1 (no-throw: no release outside the goal, hence no regrasp and no hand-over), no single grasp
+carries it into its target box (its goal less goal margin, its slot): the object moves rigidly
+with the hand, so from a grasp at offset o it can only reach o + hand range. Each event
+re-decides the objects it touches; the run's stuck objects are those stuck after the last one.
+
+Reported per rule (pooled over seeds) and per run:
+
+* **delivered** — objects at rest (< 0.01 m/s) inside their goal box at the end, on the plant;
+* **stuck** — as above; **reachable delivered** = delivered among the objects not stuck (the
+  goal is all of them); **missed** names the reachable objects not delivered;
+* **failed replans** — replans whose status is not a plan and not a planned wait: ``infeasible``,
+  ``unbounded``, ``time_limit``, ``error``, ``no_horizon`` (a failed replan keeps the previous
+  plan). **Over budget** (``searching``, ``over_budget``) are counted apart: the robot followed
+  the plan in force or waited at rest while the search went on;
+* **replan wall time** — p95 and max of the wall time each replan with work held the simulation
+  (statuses ``done`` and ``stuck`` left out, as in bench/closed_loop.py).
+
+Run it (from the repository root)::
+
+    .venv/bin/python bench/robustness.py                          # rules 1, 2 x seeds 0-14
+    .venv/bin/python bench/robustness.py --rules 2 --seeds 3 --per-kind 2
+    .venv/bin/python bench/robustness.py --workers 2 --json bench/results/robustness.json
+    .venv/bin/python bench/robustness.py --summarize bench/results/robustness.json
+
+One line per run (and per disturbance) goes to stderr; the Markdown tables to stdout and next to
+the JSON (``--json``, default bench/results/robustness.json, rewritten after every run), which
+keeps every run's record (every disturbance, every replan), the summary per rule, the machine and
+the options. ``--workers N`` runs N runs at once in processes (each search then on one thread);
+the report then says the timings were taken on a shared machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import traceback
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
+from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal
+
+from dualarm_mpc.mld import Box, target_box
+from dualarm_mpc.scenario import Event, Scenario, load_scenario, merge_overrides
+from dualarm_mpc.simulate import World, default_duration, on_robot, simulate
+from dualarm_mpc.station import _table_extent
+
+SCENARIO = "table1_vd"
+KINDS = ("held", "delivered", "table", "goal")
+DISTURBANCE_KEY = 7  # SeedSequence([KEY, seed]): the disturbances' stream, apart from the objects'
+# When each kind is due (s of simulated time): ``held`` early (the robot carries most then),
+# ``delivered`` once deliveries have begun.
+WINDOW = {"held": (3.0, 40.0), "delivered": (15.0, 70.0), "table": (3.0, 70.0),
+          "goal": (3.0, 70.0)}
+LOOK_EVERY = 0.5  # s: a disturbance waiting for its condition looks again
+PATIENCE = 40.0  # s: ... and gives up after
+KNOCK_DISTANCE = (0.10, 0.35)  # m: how far a held / delivered object is knocked
+CLEARANCE = 0.02  # m: between a knocked object and other objects / hands' grasp boxes / goals
+GOAL_SHIFT = 0.2  # m: a moved goal's centre moves at least this far
+TRIES = 2000  # random draws for a free place before a disturbance is skipped
+EXTRA_DURATION = 30.0  # simulated s added to simulate's default duration per disturbance
+FAILED = ("infeasible", "unbounded", "time_limit", "error", "no_horizon")
+OVER_BUDGET = ("searching", "over_budget")
+
+
+# --- the model's bounds: where an object can be delivered from --------------------------------
+
+
+def hand_ranges(scenario: Scenario) -> tuple[Box, Box]:
+    """The range of hand 1 (right) and hand 2 (left): the workspace, less eq. (16)'s gap on the
+    side of the other hand (x_arm2 + gap <= x_arm1, both inside the workspace)."""
+    ws = Box.of(scenario.workspace)
+    gap = scenario.hand_gap
+    right = Box(ws.lo + [gap, 0.0], ws.hi.copy())
+    left = Box(ws.lo.copy(), ws.hi - [gap, 0.0])
+    return right, left
+
+
+def stuck_reason(scenario: Scenario, goals: dict[str, list[float]], j: int,
+                 p: np.ndarray) -> str | None:
+    """Why no plan within the model can deliver object j from ``p`` with ``goals`` (None: it can,
+    or it is in its goal already). From the model's bounds only (module docstring)."""
+    p = np.asarray(p, float)[:2]
+    sc = replace(scenario, goals=goals)
+    obj = sc.objects[j]
+    if Box.of(goals[obj.goal]).contains(p):
+        return None
+    half = obj.grasp_half_size
+    target = target_box(sc, j)
+    graspable = False
+    for hand in hand_ranges(sc):
+        lo = np.maximum(hand.lo, p - half)  # where this hand can be while it grasps
+        hi = np.minimum(hand.hi, p + half)
+        if np.any(lo > hi + 1e-12):
+            continue
+        graspable = True
+        if sc.rule != 1:
+            return None  # rule 2: put down and pick up again, or throw: any graspable object
+        # Rule 1: one grasp, offset o = p - h (h in [lo, hi]); the object reaches o + range.
+        reach_lo = p - hi + hand.lo
+        reach_hi = p - lo + hand.hi
+        if np.all(reach_lo <= target.hi + 1e-12) and np.all(target.lo <= reach_hi + 1e-12):
+            return None
+    if not graspable:
+        return "beyond the hands' grasp range"
+    return "rule 1: no single grasp carries it into its goal"
+
+
+# --- the disturbances ---------------------------------------------------------------------------
+
+
+@dataclass
+class Planned:
+    """One disturbance: its kind, when it is due, its own RNG."""
+
+    kind: str
+    due: float
+    rng: np.random.Generator
+    give_up: float = 0.0
+    next_look: float = 0.0
+
+
+@dataclass
+class Disturbances:
+    """Seeded random disturbances of one run (``dualarm_mpc.simulate.Disturbance``).
+
+    ``log`` records every disturbance fired or skipped: kind, time, target, from/to (or the goal
+    boxes), and, for knocks and goal moves, the objects it left stuck (``stuck_reason``)."""
+
+    scenario: Scenario
+    seed: int
+    per_kind: int = 1
+    kinds: tuple[str, ...] = KINDS
+    plan: list[Planned] = field(init=False)
+    log: list[dict] = field(default_factory=list, init=False)
+    stuck: dict[int, str] = field(default_factory=dict, init=False)  # object → reason, now
+
+    def __post_init__(self) -> None:
+        kinds = [k for k in self.kinds for _ in range(self.per_kind)]
+        children = np.random.SeedSequence([DISTURBANCE_KEY, self.seed]).spawn(len(kinds))
+        self.plan = []
+        for kind, child in zip(kinds, children, strict=True):
+            rng = np.random.default_rng(child)
+            due = float(np.round(rng.uniform(*WINDOW[kind]), 3))
+            self.plan.append(Planned(kind, due, rng, give_up=due + PATIENCE, next_look=due))
+        self.plan.sort(key=lambda d: d.due)
+        sc = self.scenario
+        table = Box.of(_table_extent(sc)).shrink(sc.object_size / 2)
+        self.table = table  # where an object's centre may be: the whole box on the table top
+        self.initial_stuck = {j: r for j in range(sc.n_objects)
+                              if (r := stuck_reason(sc, sc.goals, j, sc.objects[j].position))}
+        self.stuck = dict(self.initial_stuck)
+
+    # the Disturbance protocol
+
+    def next_time(self) -> float | None:
+        return min((d.next_look for d in self.plan), default=None)
+
+    def __call__(self, world: World) -> list[Event]:
+        d = min(self.plan, key=lambda d: d.next_look)
+        event, entry = getattr(self, f"_{d.kind}")(d, world)
+        if event is None and world.t + LOOK_EVERY <= d.give_up and entry is None:
+            d.next_look = world.t + LOOK_EVERY  # its condition does not hold yet: look again
+            return []
+        self.plan.remove(d)
+        entry = {"kind": d.kind, "due": d.due, "t": round(world.t, 3), **(entry or {})}
+        if event is None:
+            wanted = "held" if d.kind == "held" else "resting in its goal"
+            entry.setdefault("skipped", f"no object {wanted} within {PATIENCE:g} s of its time")
+        else:
+            entry.update(self._judge(event, world))
+        self.log.append(entry)
+        return [] if event is None else [event]
+
+    # one per kind: (event, log entry) — (None, None) to wait, (None, entry) to skip
+
+    def _held(self, d: Planned, world: World):
+        held = np.flatnonzero(world.grasp.any(axis=0))
+        if held.size == 0:
+            return None, None
+        j = int(d.rng.choice(held))
+        return self._knock(d, world, j, lambda p: True)
+
+    def _delivered(self, d: Planned, world: World):
+        resting = self._resting(world)
+        if resting.size == 0:
+            return None, None
+        j = int(d.rng.choice(resting))
+        goal = Box.of(world.goals[self.scenario.objects[j].goal])
+        margin = self.scenario.object_size / 2  # the whole box out of the goal
+        return self._knock(d, world, j, lambda p: not goal.contains(p, tol=margin))
+
+    def _table(self, d: Planned, world: World):
+        j = int(d.rng.integers(self.scenario.n_objects))
+        for _ in range(TRIES):
+            p = d.rng.uniform(self.table.lo, self.table.hi)
+            if self._free(p, j, world):
+                return self._move(world, j, p), {"target": self.scenario.objects[j].name}
+        return None, {"target": self.scenario.objects[j].name, "skipped": "no free place"}
+
+    def _goal(self, d: Planned, world: World):
+        sc = self.scenario
+        names = sorted(world.goals)
+        name = names[int(d.rng.integers(len(names)))]
+        old = Box.of(world.goals[name])
+        size = old.hi - old.lo
+        ws = Box.of(sc.workspace)
+        region = Box(np.maximum(ws.lo, self.table.lo), np.minimum(ws.hi, self.table.hi) - size)
+        others = [Box.of(b) for g, b in world.goals.items() if g != name]
+        strangers = [j for j, o in enumerate(sc.objects) if o.goal != name]
+        for _ in range(TRIES):
+            lo = d.rng.uniform(region.lo, region.hi)
+            new = Box(lo, lo + size)
+            if np.abs((new.lo + new.hi) / 2 - (old.lo + old.hi) / 2).max() < GOAL_SHIFT:
+                continue
+            if any(_overlap(new, b, CLEARANCE) for b in others):
+                continue
+            if new.contains(world.object_pos[strangers], tol=sc.object_size / 2).any():
+                continue
+            box = [round(float(v), 4) for v in new.bounds()]
+            return Event(time=round(world.t, 3), kind="move_goal", target=name, box=box), {
+                "target": name, "from": world.goals[name], "to": box}
+        return None, {"target": name, "skipped": "no free place"}
+
+    # helpers
+
+    def _resting(self, world: World) -> np.ndarray:
+        sc = self.scenario
+        inside = np.array([Box.of(world.goals[o.goal]).contains(world.object_pos[j])
+                           for j, o in enumerate(sc.objects)])
+        slow = np.linalg.norm(world.object_vel, axis=1) < 0.01
+        return np.flatnonzero(inside & slow & ~world.grasp.any(axis=0))
+
+    def _knock(self, d: Planned, world: World, j: int, accept):
+        name = self.scenario.objects[j].name
+        for _ in range(TRIES):
+            angle = d.rng.uniform(0.0, 2 * math.pi)
+            distance = d.rng.uniform(*KNOCK_DISTANCE)
+            p = world.object_pos[j] + distance * np.array([math.cos(angle), math.sin(angle)])
+            if accept(p) and self._free(p, j, world):
+                return self._move(world, j, p), {"target": name}
+        return None, {"target": name, "skipped": "no free place"}
+
+    def _free(self, p: np.ndarray, j: int, world: World) -> bool:
+        """On the table top, clear of every other object and of both hands' grasp boxes."""
+        sc = self.scenario
+        if not self.table.contains(p):
+            return False
+        others = np.delete(world.object_pos, j, axis=0)
+        if others.size and (np.abs(others - p).max(axis=1) < sc.object_size + CLEARANCE).any():
+            return False
+        reach = sc.objects[j].grasp_half_size + sc.object_size / 2 + CLEARANCE
+        return not (np.abs(world.hand_pos - p).max(axis=1) < reach).any()
+
+    def _move(self, world: World, j: int, p: np.ndarray) -> Event:
+        position = [round(float(v), 4) for v in p]
+        return Event(time=round(world.t, 3), kind="move_object",
+                     target=self.scenario.objects[j].name, position=position)
+
+    def _judge(self, event: Event, world: World) -> dict:
+        """Re-decide stuck for the objects the event touches; the log entry's fields."""
+        sc = self.scenario
+        names = [o.name for o in sc.objects]
+        if event.kind == "move_object":
+            j = names.index(event.target)
+            reason = stuck_reason(sc, world.goals, j, event.position)
+            self._set_stuck(j, reason)
+            return {"from": [round(float(v), 4) for v in world.object_pos[j]],
+                    "to": event.position, "was_held": bool(world.grasp[:, j].any()),
+                    "stuck": reason}
+        goals = {**world.goals, event.target: event.box}
+        stuck = {}
+        for j, o in enumerate(sc.objects):
+            if o.goal == event.target:
+                reason = stuck_reason(sc, goals, j, world.object_pos[j])
+                self._set_stuck(j, reason)
+                if reason:
+                    stuck[o.name] = reason
+        return {"stuck": stuck or None}
+
+    def _set_stuck(self, j: int, reason: str | None) -> None:
+        if reason:
+            self.stuck[j] = reason
+        else:
+            self.stuck.pop(j, None)
+
+
+def _overlap(a: Box, b: Box, gap: float) -> bool:
+    return bool(np.all(a.lo < b.hi + gap) and np.all(b.lo < a.hi + gap))
+
+
+# --- command line ------------------------------------------------------------------------------
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--seeds", type=parse_seeds, default=list(range(15)),
+                   help="0-14 (default), 0,3,7 or a count")
+    p.add_argument("--rules", nargs="+", type=int, choices=(1, 2), default=[1, 2])
+    p.add_argument("--per-kind", type=int, default=1,
+                   help="disturbances of each kind per run (default 1: four per run)")
+    p.add_argument("--kinds", nargs="+", choices=KINDS, default=list(KINDS))
+    p.add_argument("--time-limit", type=float, default=None,
+                   help="seconds per MILP solve (default: the scenario's, 30 s)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="simulated seconds at most per run (default: simulate's by object count "
+                        f"plus {EXTRA_DURATION:g} s per disturbance)")
+    p.add_argument("--set", action="append", type=parse_set, default=[], metavar="YAML",
+                   help="extra scenario overrides, applied last (repeatable)")
+    p.add_argument("--workers", type=int, default=1,
+                   help="runs in parallel processes, each search on one thread (default 1)")
+    p.add_argument("--json", type=Path, default=Path("bench/results/robustness.json"))
+    p.add_argument("--summarize", type=Path, metavar="JSON",
+                   help="print the tables of an earlier (possibly partial) run's JSON; run nothing")
+    p.add_argument("--quiet", action="store_true", help="no per-replan lines on stderr")
+    args = p.parse_args(argv)
+    if args.per_kind < 1 or args.workers < 1:
+        p.error("--per-kind and --workers must be >= 1")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        p.error(f"--duration: must be a positive number, got {args.duration}")
+    return args
+
+
+# --- one run -----------------------------------------------------------------------------------
+
+
+def scenario_for(rule: int, seed: int, task: dict) -> Scenario:
+    """``table1_vd`` with the robot's settings, this run's rule and seed, then ``--set``."""
+    out = {**on_robot(load_scenario(SCENARIO)), "rule": rule, "seed": seed}
+    solver = {}
+    if task["time_limit"] is not None:
+        solver["time_limit_s"] = task["time_limit"]
+    if task["shared_machine"]:
+        solver["workers"] = 1  # the processes share the cores already
+    if solver:
+        out["solver"] = solver
+    for more in task["set"]:
+        merge_overrides(out, more)
+    return load_scenario(SCENARIO, out)
+
+
+def run_one(task: dict) -> dict:
+    """Simulate one (rule, seed) with its disturbances; always returns a record, never raises."""
+    rule, seed = task["rule"], task["seed"]
+    record = {"rule": rule, "seed": seed, "status": "error", "message": "",
+              "shared_machine": task["shared_machine"]}
+    tag = f"rule {rule} seed {seed}"
+
+    def progress(r) -> None:
+        if not task["quiet"]:
+            print(f"  {tag}: t {r.t:6.1f}  delivered {r.delivered:>2}  {r.status:<11} "
+                  f"{r.wall_s:6.3f} s" + (f"  ({r.note})" if r.note else ""),
+                  file=sys.stderr, flush=True)
+
+    t0 = time.perf_counter()
+    disturb = None
+    try:
+        scenario = scenario_for(rule, seed, task)
+        disturb = Disturbances(scenario, seed, task["per_kind"], tuple(task["kinds"]))
+        duration = task["duration"] or (default_duration(scenario)
+                                        + EXTRA_DURATION * len(disturb.plan))
+        record.update(m_o=scenario.m_o, n_o=scenario.n_o, n_objects=scenario.n_objects,
+                      time_limit_s=scenario.solver.time_limit_s, duration_s=duration,
+                      objects=[{"name": o.name, "position": o.position, "goal": o.goal}
+                               for o in scenario.objects],
+                      planned=[{"kind": d.kind, "due": d.due} for d in disturb.plan])
+        summary = simulate(scenario, duration, progress=progress, disturb=disturb)
+    except Exception:  # a bug in one run must not end the bench: record it and go on
+        record["message"] = traceback.format_exc(limit=6)
+        record["wall_time_s"] = time.perf_counter() - t0
+        if disturb is not None:
+            record["disturbances"] = disturb.log
+        return record
+    names = [o["name"] for o in summary.objects]
+    resting = resting_in_goal(summary)
+    stuck = {names[j]: r for j, r in sorted(disturb.stuck.items())}
+    missed = [names[j] for j in range(len(names)) if not resting[j] and names[j] not in stuck]
+    solves = [r for r in summary.replans if r["status"] not in NO_SOLVE]
+    lost = next((r["note"] for r in reversed(summary.replans) if r["status"] == "stuck"), None)
+    record.update(
+        status="ok",
+        delivered=sum(resting),
+        resting_in_goal=resting,
+        stuck=stuck,
+        stuck_delivered=sum(resting[names.index(n)] for n in stuck),
+        missed=missed,
+        planner_gave_up=lost,  # the planner's own "can no longer reach" note, if it gave up
+        timed_out=summary.sim_time_s >= duration - 1e-6,
+        disturbances=disturb.log,
+        sim_time_s=summary.sim_time_s,
+        wall_time_s=summary.wall_time_s,
+        realtime_factor=summary.realtime_factor,
+        replans=len(summary.replans),
+        solving_replans=len(solves),
+        replan_wall_s=percentiles([r["wall_s"] for r in solves]),
+        statuses=dict(Counter(r["status"] for r in summary.replans)),
+        failed_replans=sum(r["status"] in FAILED for r in summary.replans),
+        failed_replan_log=[r for r in summary.replans if r["status"] in FAILED],
+        replans_over_budget=len(summary.replans_over_budget),
+        final_goals=summary.goals,
+        final_object_pos=summary.final_object_pos,
+        final_object_speed=summary.final_object_speed,
+        delivered_time_s=summary.delivered_time_s,
+        replan_log=[{k: r[k] for k in ("t", "wall_s", "status", "horizon", "delivered", "note")}
+                    for r in summary.replans],
+        load_avg_1min=os.getloadavg()[0],  # other work on the machine skews the times
+    )
+    return record
+
+
+def run_all(tasks: list[dict], workers: int):
+    """Yield records as runs finish: in order in this process, or in ``workers`` processes."""
+    if workers <= 1:
+        yield from map(run_one, tasks)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for future in as_completed([pool.submit(run_one, t) for t in tasks]):
+            yield future.result()
+
+
+def describe(e: dict) -> str:
+    if "skipped" in e:
+        return f"{e['kind']} at {e['t']:.1f} s: skipped ({e['skipped']})"
+    if e["kind"] == "goal":
+        what = f"goal {e['target']} → {e['to']}"
+    else:
+        what = f"{e['target']} {e['from']} → {e['to']}" + (" out of the hand" if e.get(
+            "was_held") else "")
+    stuck = e.get("stuck")
+    return f"{e['kind']} at {e['t']:.1f} s: {what}" + (f" — STUCK: {stuck}" if stuck else "")
+
+
+def run_line(k: int, n: int, r: dict) -> str:
+    head = f"[{k}/{n}] rule {r['rule']} seed {r['seed']}"
+    if r["status"] != "ok":
+        return f"{head}: ERROR after {r['wall_time_s']:.0f} s: " \
+               f"{r['message'].strip().splitlines()[-1]}"
+    w = r["replan_wall_s"]
+    lines = [f"{head}: {r['delivered']}/{r['n_objects']} delivered, {len(r['stuck'])} stuck, "
+             f"missed {', '.join(r['missed']) or 'none'}; sim {r['sim_time_s']:.0f} s"
+             + (" (TIMED OUT)" if r["timed_out"] else "")
+             + f", failed replans {r['failed_replans']}, over budget {r['replans_over_budget']}, "
+             f"replan p95 {fmt(w['p95'], '.2f')} max {fmt(w['max'], '.2f')} s"]
+    lines += [f"    {describe(e)}" for e in r["disturbances"]]
+    return "\n".join(lines)
+
+
+# --- summary -----------------------------------------------------------------------------------
+
+
+def summarize(records: list[dict], rule: int) -> dict:
+    runs = [r for r in records if r["rule"] == rule]
+    ok = [r for r in runs if r["status"] == "ok"]
+    objects = sum(r["n_objects"] for r in ok)
+    delivered = sum(r["delivered"] for r in ok)
+    stuck = sum(len(r["stuck"]) for r in ok)
+    reachable = objects - stuck
+    reachable_delivered = delivered - sum(r["stuck_delivered"] for r in ok)
+    walls = [x["wall_s"] for r in ok for x in r["replan_log"] if x["status"] not in NO_SOLVE]
+    events = [e for r in ok for e in r["disturbances"]]
+    return {
+        "rule": rule, "runs": len(runs), "ok": len(ok), "objects": objects,
+        "delivered": delivered, "delivered_share": delivered / objects if objects else None,
+        "stuck": stuck, "stuck_share": stuck / objects if objects else None,
+        "reachable": reachable, "reachable_delivered": reachable_delivered,
+        "reachable_delivered_share": reachable_delivered / reachable if reachable else None,
+        "missed": [f"seed {r['seed']}: {n}" for r in ok for n in r["missed"]],
+        "runs_all_reachable_delivered": sum(not r["missed"] for r in ok),
+        "timed_out": sum(r["timed_out"] for r in ok),
+        "replans": sum(r["replans"] for r in ok),
+        "failed_replans": sum(r["failed_replans"] for r in ok),
+        "replans_over_budget": sum(r["replans_over_budget"] for r in ok),
+        "replan_wall_s": percentiles(walls),
+        "disturbances": {k: sum(e["kind"] == k and "skipped" not in e for e in events)
+                         for k in KINDS},
+        "skipped": sum("skipped" in e for e in events),
+        "mean_sim_time_s": sum(r["sim_time_s"] for r in ok) / len(ok) if ok else None,
+        "shared_machine": any(r.get("shared_machine") for r in runs),
+    }
+
+
+def share(n: int, d: int) -> str:
+    return f"{n}/{d} ({100 * n / d:.1f} %)" if d else "—"
+
+
+def main_table(summary: list[dict]) -> str:
+    header = ["rule", "runs", "disturbances held / delivered / table / goal (skipped)",
+              "objects delivered", "stuck (beyond reach)", "reachable delivered",
+              "failed replans / replans", "over budget", "replan wall p95 / max (s)",
+              "mean sim time (s)"]
+    rows = []
+    for s in summary:
+        d = s["disturbances"]
+        w = s["replan_wall_s"]
+        rows.append([str(s["rule"]), f"{s['ok']}/{s['runs']}",
+                     f"{d['held']} / {d['delivered']} / {d['table']} / {d['goal']} "
+                     f"({s['skipped']})",
+                     share(s["delivered"], s["objects"]), share(s["stuck"], s["objects"]),
+                     share(s["reachable_delivered"], s["reachable"]),
+                     f"{s['failed_replans']}/{s['replans']}", str(s["replans_over_budget"]),
+                     f"{fmt(w['p95'], '.2f')} / {fmt(w['max'], '.2f')}",
+                     fmt(s["mean_sim_time_s"], ".0f")])
+    return table(header, rows)
+
+
+def detail_table(records: list[dict]) -> str:
+    header = ["rule", "seed", "delivered", "stuck", "missed (reachable, not delivered)",
+              "failed replans", "over budget", "replan wall p95 / max (s)", "sim time (s)",
+              "disturbances"]
+    rows = []
+    for r in sorted(records, key=lambda r: (r["rule"], r["seed"])):
+        if r["status"] != "ok":
+            rows.append([str(r["rule"]), str(r["seed"]), "error", "—", "—", "—", "—", "—", "—",
+                         r["message"].strip().splitlines()[-1]])
+            continue
+        w = r["replan_wall_s"]
+        events = "; ".join(describe(e) for e in r["disturbances"])
+        rows.append([str(r["rule"]), str(r["seed"]), f"{r['delivered']}/{r['n_objects']}",
+                     ", ".join(f"{n} ({why})" for n, why in r["stuck"].items()) or "—",
+                     ", ".join(r["missed"]) or "—", str(r["failed_replans"]),
+                     str(r["replans_over_budget"]),
+                     f"{fmt(w['p95'], '.2f')} / {fmt(w['max'], '.2f')}",
+                     f"{r['sim_time_s']:.0f}" + (" (timed out)" if r["timed_out"] else ""),
+                     events])
+    return table(header, rows)
+
+
+def report(records: list[dict], options: dict) -> str:
+    summary = [summarize(records, rule) for rule in options["rules"]]
+    shared = ("runs in parallel processes: timings measured on a shared machine"
+              if options["workers"] > 1 else "one run at a time")
+    first = next((r for r in records if "m_o" in r), {})
+    extra = "".join(f", {json.dumps(e)}" for e in options["set"])
+    head = (f"Robustness, {SCENARIO} closed loop, (m_o, n_o) = ({first.get('m_o', '—')}, "
+            f"{first.get('n_o', '—')}), the robot's settings{extra}; {options['per_kind']} "
+            f"disturbance(s) of each kind per run ({', '.join(options['kinds'])}); {shared}. "
+            f"Shares are of all objects; reachable = not stuck. Failed replans: status "
+            f"{', '.join(FAILED)}; over budget: {', '.join(OVER_BUDGET)}. Replan wall time over "
+            f"replans with work (not done/stuck), pooled per rule.")
+    missed = [f"rule {s['rule']}: {', '.join(s['missed'])}" for s in summary if s["missed"]]
+    parts = [head, "", main_table(summary), ""]
+    parts += ["Reachable objects not delivered: " + ("; ".join(missed) if missed else "none"), ""]
+    parts += ["Detail:", "", detail_table(records), ""]
+    return "\n".join(parts)
+
+
+# --- output ------------------------------------------------------------------------------------
+
+
+def options_of(args: argparse.Namespace) -> dict:
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+
+
+def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
+               complete: bool) -> None:
+    """Written after every run (``complete`` false until the last), atomically."""
+    data = {"scenario": SCENARIO, "options": options_of(args), "machine": info,
+            "complete": complete, "summary": [summarize(records, r) for r in args.rules],
+            "runs": records}
+    write_json_atomic(path, data)
+
+
+def summarize_file(path: Path) -> str:
+    data = json.loads(path.read_text())
+    state = "" if data["complete"] else "\n(incomplete: the bench was stopped)\n"
+    return report(data["runs"], data["options"]) + state
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    if args.summarize:
+        print(summarize_file(args.summarize))
+        return 0
+    shared = args.workers > 1
+    tasks = [{"rule": rule, "seed": seed, "per_kind": args.per_kind, "kinds": args.kinds,
+              "time_limit": args.time_limit, "duration": args.duration, "set": args.set,
+              "shared_machine": shared, "quiet": args.quiet or shared}
+             for rule in args.rules for seed in args.seeds]
+    info = machine()
+    records: list[dict] = []
+    t0 = time.perf_counter()
+    for k, record in enumerate(run_all(tasks, args.workers), 1):
+        records.append(record)
+        print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
+        write_json(args.json, args, records, info, complete=k == len(tasks))
+    text = report(records, options_of(args)) + \
+        f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
+    write_report(args.json, text)
+    bad = any(r["status"] != "ok" or r["missed"] for r in records)
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
