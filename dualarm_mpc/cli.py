@@ -1,10 +1,16 @@
-"""Command line: ``dualarm-mpc plan`` (and ``simulate``, the closed loop in Drake)."""
+"""Command line: ``dualarm-mpc check``, ``plan`` and ``simulate`` (the closed loop in Drake).
+
+Exit codes: 0 done (or consistent), 2 bad input, 3 the task conflicts with the rules or bounds
+(no plan exists), 4 undecided within the time limits or a failed run (a plan that fails
+verification, an object not delivered)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
+import threading
 
 from dualarm_mpc.ltl import LTLSyntaxError
 from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides
@@ -50,14 +56,66 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
                    help="override any scenario field, e.g. --set 'max_speed: 0.3' (repeatable)")
 
 
+def _check(scenario, joint: bool, file=sys.stdout):
+    """Run the consistency check (``consistency.py``) and print what it found."""
+    from dualarm_mpc.consistency import check
+
+    report = check(scenario, joint=joint)
+    for conflict in report.conflicts:
+        print(f"conflict: {conflict}", file=file)
+    for what in report.undecided:
+        print(f"undecided within the time limit: {what}", file=file)
+    return report
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    report = _check(load_scenario(args.scenario, _overrides(args)), joint=True)
+    if report.conflicts:
+        return 3
+    if report.undecided:
+        return 4
+    print(f"consistent: every object has a plan on its own, and the first step as a whole, "
+          f"within {report.horizon} steps")
+    return 0
+
+
+def _interruptible(work, stop):
+    """``work()`` on a thread, so that Ctrl-C reaches the main thread at once (a HiGHS run
+    holds it until it returns); Ctrl-C stops the solves through ``stop`` (a
+    ``solver.Interrupt``) and ``work`` returns what it has."""
+    out: dict = {}
+
+    def run() -> None:
+        try:
+            out["value"] = work()
+        except BaseException as err:  # re-raised on the main thread
+            out["error"] = err
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    try:
+        while thread.is_alive():
+            thread.join(0.1)
+    except KeyboardInterrupt:
+        stop.set()
+        print("interrupted: stopping the solver", file=sys.stderr, flush=True)
+        thread.join()
+    if "error" in out:
+        raise out["error"]
+    return out["value"]
+
+
 def cmd_plan(args: argparse.Namespace) -> int:
+    from dualarm_mpc.horizon import solver_options
     from dualarm_mpc.planner import PlanningError, plan
-    from dualarm_mpc.plot import plot_plan
+    from dualarm_mpc.solver import Interrupt
     from dualarm_mpc.verify import verify
 
     scenario = load_scenario(args.scenario, _overrides(args))
     print(f"{scenario.name}: {scenario.n_objects} objects, rule {scenario.rule}, "
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o}), delivery {scenario.delivery}")
+    if _check(scenario, joint=False, file=sys.stderr).conflicts:
+        return 3
     print(f"{'step':>4}  {'delivered':<22} {'T':>3} {'binaries':>8}  {'status':<10} "
           f"{'solve [s]':>9}  {'cost':>7}")
     count = [0]
@@ -68,30 +126,51 @@ def cmd_plan(args: argparse.Namespace) -> int:
         print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
               f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}", flush=True)
 
+    def tried(res) -> None:  # a horizon without a plan: say so, a search is never silent
+        if not res.status.has_solution:
+            print(f"{'':>4}  {'':<22} {res.horizon:>3} {res.binaries:>8}  "
+                  f"{res.status.value:<10} {res.solve_time_s:>9.2f}", flush=True)
+
+    stop = Interrupt()
+    options = dataclasses.replace(solver_options(scenario), interrupt=stop)
     try:
-        result = plan(scenario, progress=progress)
+        result = _interruptible(lambda: plan(scenario, options, progress, tried), stop)
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)
-        return 2
+        if err.partial is not None and err.partial.segments:
+            _save_plan(err.partial, args, scenario)
+        return 3
     check = verify(scenario, result)
-    result = type(result)(**{**result.__dict__, "verified": check.ok})
+    result = dataclasses.replace(result, verified=check.ok)
     print(f"total: {sum(len(s.delivered) for s in result.segments)}/{scenario.n_objects} "
           f"delivered, cost {result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
           f"(CPU {result.total_cpu_time_s:.2f} s)")
-    if args.out:
-        result.save(args.out)
-        print(f"wrote {args.out}")
-    if args.plot:
-        plot_plan(result, args.plot, title=f"{scenario.name}, rule {scenario.rule}: "
-                  f"cost {result.total_cost:.3f}, solve {result.total_solve_time_s:.1f} s")
-        print(f"wrote {args.plot}")
+    _save_plan(result, args, scenario)
+    if result.partial:
+        print(f"interrupted after {len(result.segments)} step(s): what was written is partial",
+              file=sys.stderr)
+        return 130
     if not check.ok:
         print("error: the plan fails verification:\n  " + "\n  ".join(check.problems),
               file=sys.stderr)
-        return 3
+        return 4
     print("verified: the replayed trace satisfies every step's specification; "
           "every object rests in its goal")
     return 0
+
+
+def _save_plan(result, args: argparse.Namespace, scenario) -> None:
+    """Write the plan JSON and PNG asked for (a partial plan is marked so in both)."""
+    from dualarm_mpc.plot import plot_plan
+
+    partial = " (partial)" if result.partial else ""
+    if args.out:
+        result.save(args.out)
+        print(f"wrote {args.out}{partial}")
+    if args.plot:
+        plot_plan(result, args.plot, title=f"{scenario.name}, rule {scenario.rule}: cost "
+                  f"{result.total_cost:.3f}, solve {result.total_solve_time_s:.1f} s{partial}")
+        print(f"wrote {args.plot}{partial}")
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -131,6 +210,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="dualarm-mpc", description=__doc__)
     parser.add_argument("-v", "--verbose", action="store_true")
     sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("check", help="decide whether the task, the rules and the bounds admit a "
+                       "plan; name each conflict (exit 3)")
+    _scenario_arguments(p)
+    p.set_defaults(run=cmd_check)
     p = sub.add_parser("plan", help="plan the whole task (sequential transportation) and verify it")
     _scenario_arguments(p)
     p.add_argument("--out", help="write the plan JSON here")
@@ -152,6 +235,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ScenarioError, LTLSyntaxError, EncodingError) as err:  # the message names the cause
         print(f"error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # outside a solve (or a second Ctrl-C): nothing left to keep
+        print("interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

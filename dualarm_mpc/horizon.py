@@ -151,8 +151,7 @@ class HorizonProgram:
         ltl.NewContinuousVariables(self.prog.num_vars(), "model")
         self.encode(ltl, spec)
         f = self.form.extended(standard_form(ltl))
-        c = sum(self._hand_cost[i] for i in hands)
-        f.c[: len(c)] = c
+        f.c[: len(self._hand_cost[0])] = sum(self._hand_cost[i] for i in hands)
         eta = self.x.eta
         if allowed is not None:
             keep = np.broadcast_to(np.asarray(allowed, bool)[None], eta[1:].shape)

@@ -29,6 +29,13 @@ class Trajectory:
         """K, the number of transitions."""
         return len(self.force)
 
+    @staticmethod
+    def still(state) -> Trajectory:
+        """The trajectory of no step: ``state`` (an ``mld.State``) alone."""
+        return Trajectory(state.hand_pos[None], state.hand_vel[None],
+                          np.zeros((0, *state.hand_pos.shape)), state.object_pos[None],
+                          state.object_vel[None], state.grasp[None])
+
     def then(self, other: Trajectory) -> Trajectory:
         """This trajectory followed by ``other``, whose step 0 repeats this one's last step."""
         return Trajectory(
@@ -105,6 +112,8 @@ class Plan:
     segments: list[Segment] = field(default_factory=list)
     verified: bool = False
     search: str = "skeleton"  # how each step was solved: "skeleton" or "monolithic"
+    # The steps completed before an interrupt or an error: not every object is delivered.
+    partial: bool = False
 
     @property
     def total_cost(self) -> float:
@@ -134,6 +143,7 @@ class Plan:
             "verified": self.verified,
             "total_cpu_time_s": round(self.total_cpu_time_s, 4),
             "search": self.search,
+            "partial": self.partial,
         }
 
     def save(self, path: str | Path) -> None:
@@ -153,6 +163,7 @@ class Plan:
             segments=[Segment(**s) for s in data.get("segments", [])],
             verified=data.get("verified", False),
             search=data.get("search", "monolithic"),
+            partial=data.get("partial", False),
         )
 
     @staticmethod

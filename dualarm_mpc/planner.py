@@ -30,7 +30,21 @@ CAP_CHECK_TIME_S = 3.0  # per relaxation of that check
 
 
 class PlanningError(RuntimeError):
-    """No plan was found; the message says why (e.g. which rules conflict)."""
+    """No plan was found; the message says why (e.g. which rules conflict). ``partial`` holds
+    the steps completed before (a partial :class:`Plan`), if any."""
+
+    def __init__(self, message: str, partial: Plan | None = None) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
+class Interrupted(Exception):
+    """The step's solves were stopped through ``SolveOptions.interrupt`` (e.g. Ctrl-C)."""
+
+
+def _stop_if_asked(options: SolveOptions | None) -> None:
+    if options is not None and options.interrupt is not None and options.interrupt.is_set():
+        raise Interrupted
 
 
 def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
@@ -94,10 +108,12 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     last = None
     monotone = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
     for n, T in enumerate(range(predict_horizon(scenario, state, spec), cap + 1)):
+        _stop_if_asked(options)
         if monotone and n == CHECK_CAP_AFTER and T < cap and \
                 horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
             raise PlanningError(diagnose(scenario, state, spec, None, options))
         res = solve_horizon(scenario, state, spec, T, options)
+        _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
         if on_try:
             on_try(res)
         last = res
@@ -155,20 +171,32 @@ def embed_step(scenario: Scenario, state: State, objects: list[int],
 
 
 def plan(scenario: Scenario, options: SolveOptions | None = None,
-         progress: Callable[[Segment], None] | None = None) -> Plan:
+         progress: Callable[[Segment], None] | None = None,
+         on_try: Callable[[StepResult], None] | None = None) -> Plan:
     """Algorithm 1 (sequential transportation): plan m_o objects at a time until every object
-    rests in its goal. Raises :class:`PlanningError` with the reason when a step has no plan."""
-    # The oracle's tolerance: an optimal plan leaves objects on a goal's edge, give or take a
-    # rounding error.
-
+    rests in its goal. ``progress`` hears of each step, ``on_try`` of each horizon tried.
+    Raises :class:`PlanningError` with the reason when a step has no plan; when
+    ``options.interrupt`` is set, returns the steps completed so far (``partial``)."""
     state = State.initial(scenario)
     rules = rule_formulas(scenario)
-    trajectory: Trajectory | None = None
+    trajectory = Trajectory.still(state)
     segments: list[Segment] = []
     delivered_step: list[int | None] = [None] * scenario.n_objects
     done = at_rest_in_goal(scenario, state)
     for j in np.flatnonzero(done):
         delivered_step[j] = 0
+
+    def finish(partial: bool) -> Plan:
+        return Plan(
+            dt=scenario.dt, rule=scenario.rule, delivery=scenario.delivery,
+            goals={k: list(v) for k, v in scenario.goals.items()},
+            objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
+                     for o in scenario.objects],
+            workspace=list(scenario.workspace), trajectory=trajectory,
+            delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
+            partial=partial,
+        )
+
     for _ in range(3 * scenario.n_objects):  # each step delivers >= 1 object unless stuck
         remaining = [j for j in range(scenario.n_objects) if not done[j]]
         if not remaining:
@@ -176,11 +204,16 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         objects = select_objects(scenario, state, remaining)
         spec = specification(scenario, objects, rules=rules)
         cpu0 = time.process_time()
-        res, total = plan_step(scenario, state, spec, options)
+        try:
+            res, total = plan_step(scenario, state, spec, options, on_try)
+        except Interrupted:
+            return finish(partial=True)
+        except PlanningError as err:
+            raise PlanningError(str(err), finish(partial=True)) from None
         cpu = time.process_time() - cpu0
         step = embed_step(scenario, state, objects, res.trajectory)
-        offset = 0 if trajectory is None else trajectory.steps
-        trajectory = step if trajectory is None else trajectory.then(step)
+        offset = trajectory.steps
+        trajectory = trajectory.then(step)
         state = State.last(step)
         now = at_rest_in_goal(scenario, state)
         newly = [j for j in objects if now[j] and not done[j]]
@@ -198,12 +231,6 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
             progress(seg)
     if not done.all():
         missing = [scenario.objects[j].name for j in np.flatnonzero(~done)]
-        raise PlanningError(f"sequential transportation stalled: {missing} not delivered")
-    return Plan(
-        dt=scenario.dt, rule=scenario.rule, delivery=scenario.delivery,
-        goals={k: list(v) for k, v in scenario.goals.items()},
-        objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
-                 for o in scenario.objects],
-        workspace=list(scenario.workspace), trajectory=trajectory,
-        delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
-    )
+        raise PlanningError(f"sequential transportation stalled: {missing} not delivered",
+                            finish(partial=True))
+    return finish(partial=False)

@@ -1,0 +1,182 @@
+"""The consistency check: do the task, the rules and the bounds admit a plan at all?
+
+Rules are common sense kept across tasks (§I-B), so a rule that cannot hold together with a new
+task must be caught before the robot moves, and named. Each object is checked on its own: a
+one-object step from the current state — deliver it, under every rule instance over that object
+alone — at the largest horizon. For the paper's rules feasibility is monotone in T
+(:meth:`Specification.monotone_in_horizon`), so the largest horizon decides every smaller one.
+These programs carry no cost: HiGHS stops at the first solution (tens of milliseconds), and only
+a conflict takes an infeasibility proof (about a second).
+
+For an object no plan can deliver, a deletion filter finds a minimal set of rules in conflict with
+its delivery (drop any one and it is deliverable), and :func:`_reason` says why in plain words:
+the geometry (a goal beyond the hands' reach) and what each rule forbids. Objects that conflict
+only together (a rule over two objects, two objects for one small goal) show in the joint check
+of the first sequential step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+from dualarm_mpc.horizon import HorizonProgram, solver_options
+from dualarm_mpc.ltl import Eventually, Formula, Or, eta
+from dualarm_mpc.mld import Box, State, target_box
+from dualarm_mpc.planner import at_rest_in_goal, select_objects
+from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.solver import SolveOptions, Status
+from dualarm_mpc.spec import Specification, rule_formulas, specification
+
+JOINT_TIME_LIMIT_S = 20.0  # for the first step's program; beyond, "undecided"
+
+# What each of the paper's rules forbids, in the words of the conflict report.
+FORBIDS = {
+    "no-throw (18)": "forbids releasing it outside its goal",
+    "no-juggle (19)": "forbids passing it from one hand to the other",
+    "no-swap (20)": "forbids a hand taking another object right after it",
+}
+
+
+@dataclass(frozen=True)
+class Conflict:
+    """Rules (a minimal set; none: the bounds alone) under which ``objects`` cannot be
+    delivered, and why."""
+
+    objects: tuple[str, ...]
+    rules: tuple[str, ...]
+    reason: str
+
+    def __str__(self) -> str:
+        return self.reason
+
+
+@dataclass(frozen=True)
+class Report:
+    conflicts: tuple[Conflict, ...]
+    undecided: tuple[str, ...]  # what the solver could not decide within its time limit
+    horizon: int  # the largest horizon, at which everything was decided
+
+    @property
+    def consistent(self) -> bool:
+        return not self.conflicts
+
+
+def check(scenario: Scenario, state: State | None = None, joint: bool = True,
+          options: SolveOptions | None = None) -> Report:
+    """Check every object not yet resting in its goal on its own (in parallel, on
+    ``solver.workers`` threads), then — if they all pass and ``joint`` — the first sequential
+    step as a whole."""
+    state = State.initial(scenario) if state is None else state
+    options = options or solver_options(scenario)
+    T = scenario.solver.max_horizon
+    named = rule_formulas(scenario)
+    todo = [j for j in range(scenario.n_objects) if not at_rest_in_goal(scenario, state)[j]]
+    with ThreadPoolExecutor(scenario.solver.workers) as pool:
+        verdicts = list(pool.map(lambda j: _check_object(scenario, state, j, named, options),
+                                 todo))
+    conflicts = tuple(v for v in verdicts if isinstance(v, Conflict))
+    undecided = tuple(scenario.objects[j].name for j, v in zip(todo, verdicts, strict=True)
+                      if v is Status.TIME_LIMIT)
+    if joint and todo and not conflicts and not undecided:
+        objects = select_objects(scenario, state, todo)
+        spec = specification(scenario, objects, rules=named)
+        quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s,
+                                                              JOINT_TIME_LIMIT_S))
+        status = _feasible(scenario, state, spec, quick)
+        names = tuple(scenario.objects[j].name for j in objects)
+        if status is Status.INFEASIBLE:
+            conflicts = (_joint_conflict(scenario, state, spec, names, quick),)
+        elif status is Status.TIME_LIMIT:
+            undecided = (f"the first step ({', '.join(names)})",)
+    return Report(conflicts, undecided, T)
+
+
+def _feasible(scenario: Scenario, state: State, spec: Specification,
+              options: SolveOptions) -> Status:
+    """Whether ``spec`` has a plan at the largest horizon, decided by its MILP without cost
+    (the first solution ends the search): FEASIBLE, INFEASIBLE or TIME_LIMIT."""
+    res = HorizonProgram(scenario, state, list(spec.objects), scenario.solver.max_horizon).solve(
+        spec, options, hands=())
+    return Status.FEASIBLE if res.status.has_solution else res.status
+
+
+def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[str, Formula]],
+                  options: SolveOptions) -> Conflict | Status:
+    """Object j on its own: FEASIBLE, TIME_LIMIT, or the conflict with a minimal rule set."""
+    def spec(rules) -> Specification:
+        return specification(scenario, [j], m_o=1, rules=rules)
+
+    status = _feasible(scenario, state, spec(named), options)
+    if status is not Status.INFEASIBLE:
+        return status
+    needed = list(named)
+    for rule in named:  # deletion filter: keep a rule only if dropping it makes a plan
+        rest = [r for r in needed if r is not rule]
+        if _feasible(scenario, state, spec(rest), options) is Status.INFEASIBLE:
+            needed = rest
+    # Does any hand ever hold it under these rules? (No task: m_o = 0.)
+    held = dataclasses.replace(spec(needed), m_o=0, targets=())
+    held = dataclasses.replace(held, rules=held.rules + (
+        ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),))
+    never_held = bool(needed) and _feasible(scenario, state, held, options) is Status.INFEASIBLE
+    names = tuple(name for name, _ in needed)
+    return Conflict((scenario.objects[j].name,), names,
+                    _reason(scenario, j, names, never_held))
+
+
+def _reason(scenario: Scenario, j: int, rules: tuple[str, ...],
+            never_held: bool) -> str:
+    """Why object j cannot be delivered, in plain words."""
+    obj = scenario.objects[j]
+    head = f"{obj.name} → {obj.goal}: "
+    if not rules:
+        return head + (f"no plan brings it into its goal within {scenario.solver.max_horizon} "
+                       f"steps of {scenario.dt} s with |v| ≤ {scenario.max_speed} and "
+                       f"|u| ≤ {scenario.max_force} (solver.max_horizon, dt, max_speed, "
+                       "max_force)")
+    listed = " and ".join(rules)
+    if never_held:
+        return head + f"{listed} never let a hand hold it, and it is not in its goal"
+    beyond = _beyond_reach(scenario, j)
+    what = [FORBIDS.get(name, f"({name.split(' ', 1)[-1]})") for name in rules]
+    why = " and ".join(f"{name} {w}" if name in FORBIDS else name for name, w in
+                       zip(rules, what, strict=True))
+    if beyond:
+        return head + f"the goal lies beyond the hands' reach ({beyond}) and {why}"
+    return head + f"delivering it conflicts with {why}"
+
+
+def _beyond_reach(scenario: Scenario, j: int) -> str:
+    """The bound that keeps a held object j out of its goal (``"y ≤ 0.95"``), or ""."""
+    ws = Box.of(scenario.workspace)
+    half = scenario.objects[j].grasp_half_size
+    goal = target_box(scenario, j)
+    for axis, name in enumerate("xy"):
+        if goal.lo[axis] > ws.hi[axis] + half:
+            return f"{name} ≤ {ws.hi[axis] + half:.3g}"
+        if goal.hi[axis] < ws.lo[axis] - half:
+            return f"{name} ≥ {ws.lo[axis] - half:.3g}"
+    return ""
+
+
+def _joint_conflict(scenario: Scenario, state: State, spec: Specification,
+                    names: tuple[str, ...], options: SolveOptions) -> Conflict:
+    """The first step has no plan although each object has one: a minimal set of its rules."""
+    T = scenario.solver.max_horizon
+
+    def infeasible(rules) -> bool:
+        s = dataclasses.replace(spec, rules=tuple(rules))
+        return _feasible(scenario, state, s, options) is Status.INFEASIBLE
+
+    needed = list(spec.rules)
+    for rule in list(spec.rules):
+        rest = [r for r in needed if r is not rule]
+        if infeasible(rest):
+            needed = rest
+    rules = tuple(name for name, _ in needed)
+    said = " and ".join(rules) if rules else "the bounds alone"
+    return Conflict(names, rules, f"{spec.m_o} of {', '.join(names)}: no plan delivers them "
+                    f"together within {T} steps under {said}, though each one alone has a plan")
+
