@@ -84,22 +84,24 @@ def _interruptible(work, stop):
     holds it until it returns); Ctrl-C stops the solves through ``stop`` (a
     ``solver.Interrupt``) and ``work`` returns what it has."""
     out: dict = {}
+    done = threading.Event()  # not Thread.join: a join cut short by Ctrl-C can lose the thread
 
     def run() -> None:
         try:
             out["value"] = work()
         except BaseException as err:  # re-raised on the main thread
             out["error"] = err
+        finally:
+            done.set()
 
-    thread = threading.Thread(target=run, daemon=True)
-    thread.start()
+    threading.Thread(target=run, daemon=True).start()
     try:
-        while thread.is_alive():
-            thread.join(0.1)
+        while not done.wait(0.1):
+            pass
     except KeyboardInterrupt:
         stop.set()
         print("interrupted: stopping the solver", file=sys.stderr, flush=True)
-        thread.join()
+        done.wait()
     if "error" in out:
         raise out["error"]
     return out["value"]
@@ -183,6 +185,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     scenario = apply_overrides(base, overrides)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.rule}, "
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")
+    if _check(scenario, joint=False, file=sys.stderr).conflicts:
+        return 3
     print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")
 
     def progress(r) -> None:
