@@ -1,8 +1,10 @@
 """Scenario: the typed description of one table-top task (Table I of the paper), loaded from YAML.
 
 A scenario file is read into the dataclasses below; every field can then be overridden by a YAML
-mapping (the CLI's ``--set``). Any bad file or value raises :class:`ScenarioError` naming the field,
-e.g. ``objects[3].position[1]: expected a number, got 'abc'``.
+mapping (the CLI's ``--set``), whose keys may be paths in the form errors are reported in
+(``solver.time_limit_s: 5``, ``objects[3].position: [0.1, 0.2]``). Any bad file or value raises
+:class:`ScenarioError` naming the field, e.g. ``objects[3].position[1]: expected a number, got
+'abc'``. Numbers are read as YAML 1.2 reads them (``1e-3`` is a number, not text).
 """
 
 from __future__ import annotations
@@ -10,6 +12,8 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import re
+import reprlib
 import types
 import typing
 from dataclasses import dataclass, field
@@ -22,6 +26,8 @@ import yaml
 from dualarm_mpc.ltl import LTLSyntaxError, parse
 
 BUILTIN = ("table1_vc", "table1_vd")
+MAX_RANDOM_OBJECTS = 1000  # random_objects.count; more would only fill memory
+MAX_HORIZON = 1000  # solver.max_horizon; the MILP of a longer horizon is far out of reach
 
 
 class ScenarioError(ValueError):
@@ -33,7 +39,7 @@ class ObjectSpec:
     """One object: where it starts, which goal it belongs to, the grasp box H_ij of eq. (11)."""
 
     name: str = ""
-    position: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    position: list[float] = field(default_factory=list)  # required: no default place
     goal: str = ""
     grasp_half_size: float = 0.05
 
@@ -133,37 +139,59 @@ def _convert(value, hint, path: str):
         return None if value is None else _convert(value, args[0], path)
     if dataclasses.is_dataclass(hint):
         if not isinstance(value, dict):
-            raise ScenarioError(f"{path or 'scenario'}: expected a mapping, got {value!r}")
+            raise ScenarioError(f"{path or 'scenario'}: expected a mapping, got {_show(value)}")
         return _build(hint, value, path)
     if origin is list:
         (item,) = typing.get_args(hint)
         if not isinstance(value, list):
-            raise ScenarioError(f"{path}: expected a list, got {value!r}")
+            raise ScenarioError(f"{path}: expected a list, got {_show(value)}")
         return [_convert(v, item, f"{path}[{i}]") for i, v in enumerate(value)]
     if origin is dict:
         _, item = typing.get_args(hint)
         if not isinstance(value, dict):
-            raise ScenarioError(f"{path}: expected a mapping, got {value!r}")
+            raise ScenarioError(f"{path}: expected a mapping, got {_show(value)}")
         return {str(k): _convert(v, item, f"{path}.{k}") for k, v in value.items()}
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise ScenarioError(f"{path}: expected a number, got {value!r}")
+            raise ScenarioError(f"{path}: expected a number, got {_show(value)}")
         if not math.isfinite(value):
             raise ScenarioError(f"{path}: expected a finite number, got {value!r}")
         return float(value)
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ScenarioError(f"{path}: expected an integer, got {value!r}")
+            raise ScenarioError(f"{path}: expected an integer, got {_show(value)}")
         return value
     if hint is bool:
         if not isinstance(value, bool):
-            raise ScenarioError(f"{path}: expected true or false, got {value!r}")
+            raise ScenarioError(f"{path}: expected true or false, got {_show(value)}")
         return value
     if hint is str:
         if not isinstance(value, str | int | float):
-            raise ScenarioError(f"{path}: expected text, got {value!r}")
+            raise ScenarioError(f"{path}: expected text, got {_show(value)}")
         return str(value)
     raise TypeError(f"unsupported schema type {hint!r} at {path}")
+
+
+def _update(current, value, hint, path: str):
+    """``value`` (plain YAML data) as ``hint``, over ``current``: a mapping updates a dataclass
+    field by field and a mapping key by key (``goals: {red: [...]}`` moves red and keeps the other
+    goals, as Drake's ``yaml_load_typed`` does with retain_map_defaults; an empty mapping clears
+    it); a mapping of indices updates those elements of a list. Anything else replaces."""
+    if isinstance(value, dict) and current is not None:
+        if dataclasses.is_dataclass(current):
+            return _build(type(current), value, path, current)
+        if isinstance(current, dict) and value:
+            _, item = typing.get_args(hint)
+            return {**current, **{str(k): _update(current.get(str(k)), v, item, f"{path}.{k}")
+                                  for k, v in value.items()}}
+        if isinstance(current, list) and value and all(map(_is_index, value)):
+            (item,) = typing.get_args(hint)
+            out = list(current)
+            for i, v in value.items():
+                _check_index(i, out, path)
+                out[i] = _update(out[i], v, item, f"{path}[{i}]")
+            return out
+    return _convert(value, hint, path)
 
 
 def _build(cls, data: dict, path: str, base=None):
@@ -177,37 +205,77 @@ def _build(cls, data: dict, path: str, base=None):
     obj = base if base is not None else cls()
     for key, value in data.items():
         sub = f"{path}.{key}" if path else key
-        current = getattr(obj, key)
-        if dataclasses.is_dataclass(hints[key]) or (
-            current is not None and dataclasses.is_dataclass(current) and isinstance(value, dict)
-        ):
-            if current is None:
-                current = _convert(value, hints[key], sub)
-            else:
-                _build(type(current), value if isinstance(value, dict) else {}, sub, current)
-                if not isinstance(value, dict):
-                    raise ScenarioError(f"{sub}: expected a mapping, got {value!r}")
-            setattr(obj, key, current)
-        elif isinstance(current, dict) and isinstance(value, dict) and value:
-            # A mapping merges into the existing one, as Drake's yaml_load_typed does with
-            # retain_map_defaults: `goals: {red: [...]}` moves red and keeps the other goals.
-            # An empty mapping clears it.
-            setattr(obj, key, {**current, **_convert(value, hints[key], sub)})
-        else:
-            setattr(obj, key, _convert(value, hints[key], sub))
+        setattr(obj, key, _update(getattr(obj, key), value, hints[key], sub))
     return obj
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = _SHORT.maxother = 60
+
+
+def _show(value) -> str:
+    """``repr(value)`` for a message, shortened if long."""
+    return _SHORT.repr(value)
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML as 1.2 reads numbers: YAML 1.1 (PyYAML) reads ``1e-3`` and ``2E5`` as text."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+# A key of an override that names a field by its path: solver.time_limit_s, objects[0].position
+_PATH = re.compile(r"[A-Za-z_]\w*(?:\.[^.\[\]]+|\[[0-9]+\])+")
+_STEP = re.compile(r"\.([^.\[\]]+)|\[([0-9]+)\]")
+
+
+def _is_index(key) -> bool:
+    return isinstance(key, int) and not isinstance(key, bool)
+
+
+def _check_index(i: int, items: list, path: str) -> None:
+    if not 0 <= i < len(items):
+        raise ScenarioError(f"{path}[{i}]: no such element ({path} has {len(items)})")
+
+
+def _paths(data: dict) -> dict:
+    """``data`` with its path keys (``solver.time_limit_s``, ``objects[0].position``) made
+    nested mappings, an index becoming a mapping ``{index: value}``; later keys win."""
+    out: dict = {}
+    for key, value in copy.deepcopy(data).items():
+        if isinstance(key, str) and ("." in key or "[" in key):
+            if not _PATH.fullmatch(key):
+                raise ScenarioError(f"{key}: not a field path (such as solver.time_limit_s or "
+                                    f"objects[0].position)")
+            head = re.match(r"\w+", key)[0]
+            for name, index in reversed(_STEP.findall(key, len(head))):
+                value = {name or int(index): value}
+            key = head
+        merge_overrides(out, {key: value})
+    return out
 
 
 def _yaml(text: str, where: str) -> dict:
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as err:
         raise ScenarioError(f"{where}: not valid YAML: {err}") from err
+    except RecursionError as err:
+        raise ScenarioError(f"{where}: nested too deeply") from err
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise ScenarioError(f"{where}: expected a mapping of scenario fields, got {data!r}")
-    return data
+        raise ScenarioError(f"{where}: expected a mapping of scenario fields, got {_show(data)}")
+    return _paths(data)
+
+
+def parse_override(text: str, where: str = "override") -> dict:
+    """A YAML mapping of fields (or field paths) to values, e.g. ``solver.time_limit_s: 5``."""
+    return _yaml(text, where)
 
 
 def scenario_path(name_or_path: str) -> Path:
@@ -225,16 +293,25 @@ def scenario_path(name_or_path: str) -> Path:
 def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Scenario:
     """Load a scenario file, apply ``overrides`` (a mapping or YAML text), then validate it."""
     path = scenario_path(name_or_path)
-    scenario = _build(Scenario, _yaml(path.read_text(), str(path)), "")
-    return apply_overrides(scenario, overrides)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as err:
+        raise ScenarioError(f"{path}: not UTF-8 text (byte {err.start} is "
+                            f"{err.object[err.start]:#04x})") from err
+    except OSError as err:
+        raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
+    data = _yaml(text, str(path))
+    _one_source_of_objects(data, drawn=False)
+    return apply_overrides(_build(Scenario, data, ""), overrides)
 
 
 def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:
     """A copy of ``scenario`` with ``overrides`` applied, objects resolved, all checked."""
     scenario = copy.deepcopy(scenario)
-    if isinstance(overrides, str):
-        overrides = _yaml(overrides, "override")
+    overrides = _yaml(overrides, "override") if isinstance(overrides, str) else \
+        _paths(overrides or {})
     if overrides:
+        _one_source_of_objects(overrides, drawn=scenario.random_objects is not None)
         _build(Scenario, overrides, "", scenario)
     if scenario.random_objects is not None and scenario.goals:
         # the objects follow from (random_objects, seed); with no goals, validate says so
@@ -246,13 +323,35 @@ def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenari
     return scenario
 
 
-def merge_overrides(into: dict, extra: dict) -> None:
-    """Merge ``extra`` into ``into`` in place: nested dicts key by key, anything else replaced."""
+def _one_source_of_objects(data: dict, drawn: bool) -> None:
+    """Objects given where random objects are drawn (``drawn``: before ``data``) would be
+    replaced by the draw."""
+    if "random_objects" in data:
+        drawn = data["random_objects"] is not None
+    if "objects" in data and drawn:
+        raise ScenarioError("objects: given while random_objects draws the objects, which would "
+                            "replace them; give one of the two (random_objects: null to list "
+                            "objects)")
+
+
+def merge_overrides(into: dict, extra: dict, path: str = "") -> None:
+    """Merge ``extra`` into ``into`` in place: mappings key by key, a mapping of indices into a
+    list element by element (what ``objects[0].goal`` paths become), anything else replaced."""
     for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(into.get(key), dict):
-            merge_overrides(into[key], value)
-        else:
-            into[key] = value
+        into[key] = _merged(into.get(key), value, f"{path}.{key}" if path else str(key))
+
+
+def _merged(current, value, path: str):
+    if isinstance(value, dict) and isinstance(current, dict):
+        merge_overrides(current, value, path)
+        return current
+    if isinstance(value, dict) and isinstance(current, list) and value and \
+            all(map(_is_index, value)):
+        for i, v in value.items():
+            _check_index(i, current, path)
+            current[i] = _merged(current[i], v, f"{path}[{i}]")
+        return current
+    return value
 
 
 def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> list[ObjectSpec]:
@@ -297,8 +396,15 @@ def _point(value: list[float], path: str) -> None:
 
 def _check_random_objects(r: RandomObjects) -> None:
     _box(r.region, "random_objects.region")
-    if r.count < 1:
-        raise ScenarioError(f"random_objects.count: must be >= 1, got {r.count}")
+    if not 1 <= r.count <= MAX_RANDOM_OBJECTS:
+        raise ScenarioError(f"random_objects.count: must be 1..{MAX_RANDOM_OBJECTS}, got {r.count}")
+    if r.min_separation > 0:
+        xmin, xmax, ymin, ymax = r.region
+        room = (math.floor((xmax - xmin) / r.min_separation) + 1) * \
+            (math.floor((ymax - ymin) / r.min_separation) + 1)
+        if r.count > room:
+            raise ScenarioError(f"random_objects: {r.count} objects {r.min_separation} m apart do "
+                                f"not fit in {r.region} (at most {room})")
     if r.grasp_half_size <= 0:
         raise ScenarioError(
             f"random_objects.grasp_half_size: must be positive, got {r.grasp_half_size}"
@@ -318,6 +424,8 @@ def validate(s: Scenario) -> None:
         raise ScenarioError(f"goal_margin: must be >= 0, got {s.goal_margin}")
     if s.hand_gap < 0:
         raise ScenarioError(f"hand_gap: must be >= 0, got {s.hand_gap!r}")
+    if s.seed < 0:
+        raise ScenarioError(f"seed: must be >= 0, got {s.seed}")
     _box(s.workspace, "workspace")
     for name, key in (("hand_start", s.hand_start), ("arm_bases", s.arm_bases)):
         if len(key) != 2:
@@ -345,6 +453,8 @@ def validate(s: Scenario) -> None:
         raise ScenarioError("objects: no objects (give objects or random_objects)")
     names = set()
     for j, o in enumerate(s.objects):
+        if not o.position:
+            raise ScenarioError(f"objects[{j}].position: missing (give [x, y])")
         _point(o.position, f"objects[{j}].position")
         if o.goal not in s.goals:
             raise ScenarioError(
@@ -384,12 +494,17 @@ def validate(s: Scenario) -> None:
     for key in ("max_horizon", "threads", "workers"):
         if getattr(s.solver, key) < 1:
             raise ScenarioError(f"solver.{key}: must be >= 1, got {getattr(s.solver, key)}")
+    if s.solver.max_horizon > MAX_HORIZON:
+        raise ScenarioError(f"solver.max_horizon: at most {MAX_HORIZON}, got "
+                            f"{s.solver.max_horizon}")
     for n, text in enumerate(s.rules):
         try:
             parse(text)
         except LTLSyntaxError as err:
             raise ScenarioError(f"rules[{n}]: {err}") from err
     for e, ev in enumerate(s.events):
+        if ev.time < 0:
+            raise ScenarioError(f"events[{e}].time: must be >= 0, got {ev.time}")
         if ev.kind == "move_object":
             if ev.target not in names:
                 raise ScenarioError(f"events[{e}].target: no object named {ev.target!r}")
@@ -400,3 +515,32 @@ def validate(s: Scenario) -> None:
             _box(ev.box, f"events[{e}].box")
         else:
             raise ScenarioError(f"events[{e}].kind: must be 'move_object' or 'move_goal'")
+    _check_reach(s)
+
+
+def _check_reach(s: Scenario) -> None:
+    """Objects no hand can move: off the table (beyond the hand range widened by the grasp box,
+    eq. 11, and not in their goal), or farther from their goal than an object can travel in one
+    horizon (a held or sliding object moves at most max_speed·dt per step and axis)."""
+    lo = np.array(s.workspace[::2])
+    hi = np.array(s.workspace[1::2])
+    step = s.max_speed * s.dt
+    for j, o in enumerate(s.objects):
+        p = np.array(o.position)
+        goal = s.goals[o.goal]
+        away = float(np.maximum(np.maximum(np.array(goal[::2]) - p, p - np.array(goal[1::2])),
+                                0.0).max())
+        half = o.grasp_half_size
+        if away > 0 and ((p < lo - half) | (p > hi + half)).any():
+            drawn = " (drawn from random_objects.region)" if s.random_objects is not None else ""
+            raise ScenarioError(
+                f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the hands' "
+                f"reach (workspace {s.workspace} widened by its grasp_half_size {half}) and "
+                f"outside its goal {o.goal}")
+        if away > step * s.solver.max_horizon + 1e-9:
+            raise ScenarioError(
+                f"dt: with dt = {s.dt} s and max_speed = {s.max_speed} m/s an object moves at "
+                f"most {step:.3g} m per step, {step * s.solver.max_horizon:.3g} m in "
+                f"solver.max_horizon = {s.solver.max_horizon} steps, but {o.name} is "
+                f"{away:.3g} m from its goal {o.goal}: raise dt, max_speed or "
+                f"solver.max_horizon")

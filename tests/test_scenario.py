@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +15,10 @@ from dualarm_mpc.scenario import (
     ScenarioError,
     apply_overrides,
     load_scenario,
+    merge_overrides,
+    parse_override,
     random_objects,
+    scenario_path,
 )
 
 # --- built-in scenarios ---------------------------------------------------------------------------
@@ -328,3 +332,171 @@ def test_unknown_field_in_a_file(tmp_path) -> None:
     path.write_text("goalz: {}\n")
     with pytest.raises(ScenarioError, match="^goalz: unknown field"):
         load_scenario(str(path))
+
+
+# --- numbers, field paths, files: issue 7 --------------------------------------------------------
+
+
+@pytest.mark.parametrize(("text", "value"), [("1e-3", 1e-3), ("5E-1", 0.5), ("2.5e+2", 250.0),
+                                             ("-1.5e-3", -1.5e-3), (".5e1", 5.0)])
+def test_numbers_yaml_1_1_reads_as_text_are_numbers(tmp_path, text: str, value: float) -> None:
+    """YAML 1.1 (PyYAML) reads ``1e-3`` as the string '1e-3'; YAML 1.2 and every user read it
+    as a number."""
+    assert parse_override(f"solver: {{mip_rel_gap: {text}}}") == {
+        "solver": {"mip_rel_gap": value}}
+    path = tmp_path / "s.yaml"
+    path.write_text(f"state_weight: {text}\n")
+    assert load_scenario("table1_vc", path.read_text()).state_weight == value
+    assert load_scenario("table1_vc", {"state_weight": value}).state_weight == value
+
+
+def test_a_quoted_number_stays_text() -> None:
+    assert _error("max_speed: '5e-1'").startswith("max_speed: expected a number, got '5e-1'")
+
+
+@pytest.mark.parametrize(
+    ("path_form", "nested"),
+    [
+        ("solver.time_limit_s: 5", {"solver": {"time_limit_s": 5}}),
+        ("random_objects.count: 3", {"random_objects": {"count": 3}}),
+        ("goals.red: [0.2, 0.5, 1.2, 1.4]", {"goals": {"red": [0.2, 0.5, 1.2, 1.4]}}),
+    ],
+)
+def test_a_field_path_is_the_nested_mapping(path_form: str, nested: dict) -> None:
+    """The form the error messages print works as an override."""
+    assert load_scenario("table1_vd", path_form) == load_scenario("table1_vd", nested)
+
+
+def test_paths_with_indices_change_one_element() -> None:
+    base = load_scenario("table1_vc")
+    s = load_scenario("table1_vc", "objects[2].position: [0.25, 0.15]\n"
+                                   "objects[3].position[1]: 0.25\n"
+                                   "goals.red[3]: 1.5\nhand_start[1][0]: -0.2")
+    assert s.objects[2].position == [0.25, 0.15]
+    assert s.objects[3].position == [base.objects[3].position[0], 0.25]
+    assert s.objects[2].name == base.objects[2].name and s.objects[4] == base.objects[4]
+    assert s.goals["red"] == [*base.goals["red"][:3], 1.5]
+    assert s.hand_start == [base.hand_start[0], [-0.2, 0.0]]
+    assert load_scenario("table1_vc", {"objects[2].goal": "blue"}).objects[2].goal == "blue"
+
+
+def test_later_keys_win_between_paths_and_mappings() -> None:
+    assert load_scenario("table1_vc", "solver: {time_limit_s: 7}\nsolver.time_limit_s: 5"
+                         ).solver.time_limit_s == 5
+    assert load_scenario("table1_vc", "solver.time_limit_s: 5\nsolver: {time_limit_s: 7}"
+                         ).solver.time_limit_s == 7
+    # a path into a list given in the same override changes that list
+    s = load_scenario("table1_vc", {"objects": [{"name": "a", "position": [0.1, 0.1],
+                                                 "goal": "red"}], "objects[0].goal": "blue"})
+    assert [(o.name, o.goal) for o in s.objects] == [("a", "blue")]
+
+
+def test_merging_overrides_patches_lists_by_index() -> None:
+    into = {"objects": [{"name": "a", "goal": "red"}], "solver": {"time_limit_s": 3}}
+    merge_overrides(into, parse_override("objects[0].goal: blue\nsolver.workers: 1"))
+    assert into == {"objects": [{"name": "a", "goal": "blue"}],
+                    "solver": {"time_limit_s": 3, "workers": 1}}
+    with pytest.raises(ScenarioError, match=r"^objects\[1\]: no such element"):
+        merge_overrides(into, parse_override("objects[1].goal: blue"))
+
+
+def test_a_path_in_a_file(tmp_path) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text(Path(scenario_path("table1_vc")).read_text() + "\nsolver.max_horizon: 20\n")
+    assert load_scenario(str(path)).solver.max_horizon == 20
+
+
+@pytest.mark.parametrize(
+    ("override", "prefix"),
+    [
+        ("solver.timelimit: 3", "solver.timelimit: unknown field"),
+        ("solver..x: 3", "solver..x: not a field path"),
+        ("objects[x].goal: red", "objects[x].goal: not a field path"),
+        ("objects[10].goal: red", "objects[10]: no such element (objects has 10)"),
+        ("objects[0].position[2]: 0.1", "objects[0].position[2]: no such element"),
+        ("events[0].time: 1", "events[0]: no such element (events has 0)"),
+        ("max_speed.x: 1", "max_speed: expected a number"),
+    ],
+)
+def test_bad_field_paths_name_the_path(override: str, prefix: str) -> None:
+    assert _error(override).startswith(prefix)
+
+
+def test_a_file_that_is_not_utf8(tmp_path) -> None:
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("name: caf\u00e9\n".encode("latin-1"))
+    with pytest.raises(ScenarioError, match=rf"^{re.escape(str(path))}: not UTF-8 .*0xe9"):
+        load_scenario(str(path))
+
+
+def test_deeply_nested_yaml_is_a_scenario_error() -> None:
+    message = _error("rules: " + "[" * 5000 + "]" * 5000)
+    assert message.startswith("override: nested too deeply")
+
+
+def test_a_long_value_is_shortened_in_the_message() -> None:
+    message = _error({"name": "x", "max_speed": "y" * 10_000})
+    assert message.startswith("max_speed: expected a number") and len(message) < 200
+
+
+# --- silently changed data is an error: issue 7 --------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("overrides", "prefix"),
+    [
+        ({"seed": -1}, "seed: must be >= 0"),
+        ({"objects": [{"name": "a", "goal": "red"}]}, "objects[0].position: missing"),
+        ({"events": [{"time": -1.0, "kind": "move_object", "target": "object1",
+                      "position": [0.0, 0.1]}]}, "events[0].time: must be >= 0"),
+        ({"solver": {"max_horizon": 100_000}}, "solver.max_horizon: at most"),
+    ],
+)
+def test_values_that_were_silently_changed_are_errors(overrides, prefix: str) -> None:
+    assert _error(overrides).startswith(prefix)
+
+
+def test_objects_and_random_objects_together_are_an_error(tmp_path) -> None:
+    """The random draw replaced the listed objects without a word."""
+    path = tmp_path / "both.yaml"
+    path.write_text("goals: {red: [0.2, 0.4, 0.5, 0.7]}\n"
+                    "objects: [{name: a, position: [0.1, 0.1], goal: red}]\n"
+                    "random_objects: {count: 3}\nm_o: 1\nn_o: 1\n")
+    with pytest.raises(ScenarioError, match="^objects: given while random_objects"):
+        load_scenario(str(path))
+    assert _error({"objects": [{"name": "a", "position": [0.1, 0.1], "goal": "red"}]},
+                  "table1_vd").startswith("objects: given while random_objects")
+    assert _error("objects[0].position: [0.1, 0.1]", "table1_vd").startswith("objects: given")
+    listed = load_scenario("table1_vd", {"random_objects": None, "objects": [
+        {"name": "a", "position": [0.1, 0.1], "goal": "red"}]})
+    assert [o.name for o in listed.objects] == ["a"]
+
+
+def test_an_object_off_the_table_is_named() -> None:
+    """Named as itself, not as the speed limits after a failed plan."""
+    message = _error({"objects[0].position": [0.3, -0.5]})
+    assert message.startswith("objects[0].position: object1 at [0.3, -0.5] lies beyond the "
+                              "hands' reach"), message
+    # a grasp box's reach beyond the hand range is still reachable, and so is a goal
+    load_scenario("table1_vc", {"objects[0].position": [0.3, -0.04]})
+    load_scenario("table1_vc", {"objects[0].position": [0.4, 1.3]})
+    drawn = _error({"random_objects": {"region": [0.0, 0.2, -0.5, -0.4]}}, "table1_vd")
+    assert drawn.startswith("objects[0].position") and "random_objects.region" in drawn
+
+
+def test_a_dt_too_short_for_the_task_is_named() -> None:
+    message = _error({"dt": 0.001})
+    assert message.startswith("dt: with dt = 0.001 s"), message
+    assert "solver.max_horizon" in message and "object1" in message
+
+
+@pytest.mark.parametrize(
+    ("random", "prefix"),
+    [
+        ({"count": 10**9}, "random_objects.count: must be 1..1000"),
+        ({"count": 100, "min_separation": 0.2}, "random_objects: 100 objects 0.2 m apart do not "
+                                                 "fit"),
+    ],
+)
+def test_random_objects_that_would_fill_memory_or_never_fit(random, prefix: str) -> None:
+    assert _error({"random_objects": random}, "table1_vd").startswith(prefix)
