@@ -601,6 +601,11 @@ def placeholders(f: Formula) -> frozenset[str]:
     return frozenset(e for a in atoms(f) for e in a.index if isinstance(e, str))
 
 
+def rename_atoms(f: Formula, mapping: Mapping[Atom, Atom]) -> Formula:
+    """Replace each atom found in ``mapping`` by its image."""
+    return _map_atoms(f, lambda a: mapping.get(a, a))
+
+
 def substitute(f: Formula, mapping: Mapping[str, int]) -> Formula:
     """Replace placeholder index entries by ``mapping[name]``; unmapped placeholders are kept."""
     return _map_atoms(

@@ -9,7 +9,9 @@ consume these same formulas. Atoms: ``eta[i,j]`` — hand i (1 = right, 2 = left
 
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 from dataclasses import dataclass
 
 from dualarm_mpc.evaluate import evaluate
@@ -31,13 +33,18 @@ from dualarm_mpc.ltl import (
     nnf,
     parse,
     placeholders,
+    rename_atoms,
     substitute,
     theta,
 )
-from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.scenario import Scenario, ScenarioError
 
 ARMS = (1, 2)
 ARM_PLACEHOLDER = "i"
+# Instances of one rule in a step (arms × ordered choices of objects), beyond which it is refused:
+# 4 object placeholders over 10 objects, with i, encode in about 2 s per program; 7 would not fit
+# in memory.
+MAX_RULE_INSTANCES = 20_000
 
 # The paper's rules, §V-B, with weak next (design §2: □(θ → ○θ) reads θ(k) → θ(k+1) for k < T).
 RULE_TEXT = {
@@ -126,6 +133,21 @@ def survives_idling(formula: Formula) -> bool:
     f = nnf(formula)
     if isinstance(f, And):
         return all(survives_idling(a) for a in f.args)
+    return _survives_idling(_renumbered(f))
+
+
+def _renumbered(f: Formula) -> Formula:
+    """``f`` with its objects numbered 1, 2, … in their order: whether a formula survives
+    idling does not depend on which objects it is about, so the instances of one rule over
+    different objects share one enumeration (cached)."""
+    found = atoms(f)
+    number = {j: n + 1 for n, j in enumerate(sorted({a.index[-1] for a in found}, key=str))}
+    return rename_atoms(f, {a: Atom(a.name, (*a.index[:-1], number[a.index[-1]]))
+                            for a in found})
+
+
+@functools.cache
+def _survives_idling(f: Formula) -> bool:
     states = list(_grasp_states(sorted(atoms(f), key=str)))
     for g in _temporal_arguments(f) | {f}:
         depth = _next_depth(g)
@@ -186,12 +208,84 @@ def _grasp_states(found: list[Atom]):
 
 
 def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str, Formula]]:
-    """The named rules in force (unexpanded): the paper's rule 1 or 2 plus the scenario's own."""
+    """The named rules in force (unexpanded): the paper's rule 1 or 2 plus the scenario's own,
+    each checked (:func:`check_rule`) before any solve."""
     rule = scenario.rule if rule is None else rule
     named = [(name, parse(RULE_TEXT[name])) for name in RULES[rule]]
     for n, text in enumerate(scenario.rules):
-        named.append((f"rules[{n}] {text}", parse(text)))
+        f = parse(text)
+        check_rule(f, scenario, f"rules[{n}]")
+        named.append((f"rules[{n}] {text}", f))
     return named
+
+
+def check_rule(f: Formula, scenario: Scenario, where: str) -> None:
+    """A user rule the planner can use, else :class:`ScenarioError` naming ``where``: known
+    atoms over the scenario's hands and objects, no goal atom under a negation, no more object
+    placeholders than a step has objects (the rule would expand to nothing) and an expansion of
+    at most ``MAX_RULE_INSTANCES``."""
+    n = scenario.n_objects
+    for atom in sorted(atoms(f), key=str):
+        problem = _atom_problem(atom, n)
+        if problem:
+            raise ScenarioError(f"{where}: {problem}")
+    for atom in sorted(_negated_atoms(nnf(f)), key=str):
+        if atom.name == "theta":
+            raise ScenarioError(
+                f"{where}: {atom} appears negated: a goal atom is linked to the state "
+                "one-sidedly (eq. 7: θ = 1 → x ∈ H), so its negation cannot be encoded soundly; "
+                "state the rule with it in positive position")
+    names = placeholders(f)
+    objects = sorted(names - {ARM_PLACEHOLDER})
+    step = min(scenario.n_o, n)
+    if len(objects) > step:
+        raise ScenarioError(
+            f"{where}: {len(objects)} distinct object placeholders ({', '.join(objects)}) but a "
+            f"sequential step has at most {step} objects (n_o = {scenario.n_o}, {n} objects): "
+            "the rule would never apply")
+    size = (len(ARMS) if ARM_PLACEHOLDER in names else 1) * math.perm(step, len(objects))
+    if size > MAX_RULE_INSTANCES:
+        raise ScenarioError(
+            f"{where}: expands to {size:,} instances ({len(objects)} object placeholders over "
+            f"the {step} objects of a step), more than {MAX_RULE_INSTANCES:,}; use fewer "
+            "placeholders or a smaller n_o")
+
+
+_ATOMS = ("the atoms are eta[i,j] (hand i = 1 right, 2 left, grabs object j) and theta[j] "
+         "(object j in its goal)")
+
+
+def _atom_problem(atom: Atom, n: int) -> str:
+    """What is wrong with ``atom`` in a rule over ``n`` objects, or ""."""
+    arity = {"eta": 2, "theta": 1}.get(atom.name)
+    if arity != len(atom.index):
+        return f"unknown atom {atom}: {_ATOMS}, j = 1..{n}"
+    *hand, obj = atom.index
+    if hand and hand[0] not in (*ARMS, ARM_PLACEHOLDER):
+        return f"{atom}: the hand is 1 (right), 2 (left) or the placeholder {ARM_PLACEHOLDER}"
+    if obj == ARM_PLACEHOLDER:
+        return (f"{atom}: {ARM_PLACEHOLDER} is the hand placeholder; name objects by another "
+                "(j, l, ...)")
+    if isinstance(obj, int) and not 1 <= obj <= n:
+        return f"{atom}: no object {obj} (objects 1..{n})"
+    return ""
+
+
+def _negated_atoms(f: Formula) -> set[Atom]:
+    """The atoms under a negation in ``f``, a formula in negation normal form."""
+    out: set[Atom] = set()
+    stack = [f]
+    while stack:
+        g = stack.pop()
+        if isinstance(g, Not):
+            out.add(g.arg)
+        elif isinstance(g, Next | WeakNext | Always | Eventually):
+            stack.append(g.arg)
+        elif isinstance(g, Until | Release):
+            stack += [g.lhs, g.rhs]
+        elif isinstance(g, And | Or):
+            stack += list(g.args)
+    return out
 
 
 def specification(scenario: Scenario, objects: list[int], m_o: int | None = None,
