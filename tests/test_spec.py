@@ -1,0 +1,68 @@
+"""Tests for dualarm_mpc.spec's check of user rules: every rule the planner cannot use is refused
+with its field before any solve (issue 7), the paper's rules and sound user rules pass."""
+
+from __future__ import annotations
+
+import pytest
+
+from dualarm_mpc.scenario import ScenarioError, load_scenario
+from dualarm_mpc.spec import MAX_RULE_INSTANCES, rule_formulas, specification
+
+
+def _rules(rules: list[str], **overrides):
+    return rule_formulas(load_scenario("table1_vc", {"rules": rules, **overrides}))
+
+
+@pytest.mark.parametrize(
+    ("rule", "message"),
+    [
+        ("G foo", "rules[1]: unknown atom foo: the atoms are eta[i,j]"),
+        ("G eta[1,2,3]", "rules[1]: unknown atom eta[1,2,3]"),
+        ("G !theta[1]", "rules[1]: theta[1] appears negated"),
+        ("G(theta[j] -> WX theta[j]) & !F theta[2]", "rules[1]: theta[2] appears negated"),
+        ("G eta[3,1]", "rules[1]: eta[3,1]: the hand is 1 (right), 2 (left) or the placeholder i"),
+        ("G !eta[j,1]", "rules[1]: eta[j,1]: the hand is"),
+        ("G eta[1,11]", "rules[1]: eta[1,11]: no object 11 (objects 1..10)"),
+        ("F theta[0]", "rules[1]: theta[0]: no object 0"),
+        ("G !eta[1,i]", "rules[1]: eta[1,i]: i is the hand placeholder"),
+    ],
+)
+def test_a_rule_the_planner_cannot_use_is_refused_by_field(rule: str, message: str) -> None:
+    """Before: an unknown atom failed at the first solve (a traceback at every replan of the
+    closed loop, while the robot idled)."""
+    with pytest.raises(ScenarioError) as info:
+        _rules(["G true", rule])
+    assert str(info.value).startswith(message), info.value
+
+
+def test_more_placeholders_than_a_step_has_objects_is_refused() -> None:
+    """It expanded to nothing: the rule was silently dropped."""
+    with pytest.raises(ScenarioError, match=r"^rules\[0\]: 3 distinct object placeholders "
+                       r"\(a, b, c\) but a sequential step has at most 2 objects \(n_o = 2"):
+        _rules(["G(eta[1,a] -> !eta[1,b] & !eta[1,c])"], m_o=2, n_o=2)
+    _rules(["G(eta[1,a] -> !eta[1,b] & !eta[1,c])"], m_o=2, n_o=3)
+
+
+def test_a_rule_whose_expansion_is_huge_is_refused_with_its_size() -> None:
+    rule = "G(" + " & ".join(f"eta[i,{p}]" for p in "abcdefg") + ")"
+    with pytest.raises(ScenarioError, match=r"^rules\[0\]: expands to 1,209,600 instances "
+                       r"\(7 object placeholders over the 10 objects of a step\)"):
+        _rules([rule], n_o=10)
+    assert 2 * 10 * 9 * 8 * 7 < MAX_RULE_INSTANCES  # four placeholders with i still pass
+    _rules(["G(eta[i,a] & eta[i,b] & eta[i,c] -> WX !eta[i,d])"], n_o=10)
+
+
+@pytest.mark.parametrize("rule", [1, 2])
+def test_the_papers_rules_pass_on_one_object(rule: int) -> None:
+    """No-swap (20) has two placeholders: over one object it is vacuous, and that is right."""
+    s = load_scenario("table1_vc", {"objects": [{"name": "a", "position": [0.1, 0.1],
+                                                 "goal": "red"}], "m_o": 1, "n_o": 1,
+                                    "rule": rule})
+    assert [name for name, _ in rule_formulas(s)]
+
+
+def test_sound_user_rules_pass_and_expand() -> None:
+    named = _rules(["G !eta[2,3]", "G(eta[i,j] -> WX !eta[i,l])", "F(theta[1] | !eta[1,2])"])
+    s = load_scenario("table1_vc", {"rules": ["G(eta[i,j] -> WX !eta[i,l])"]})
+    spec = specification(s, [0, 1, 2], rules=named)
+    assert len(spec.rules) == 5
