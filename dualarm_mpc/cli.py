@@ -9,17 +9,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import math
 import sys
 import threading
+from pathlib import Path
 
 from dualarm_mpc.ltl import LTLSyntaxError
-from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides
+from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides, parse_override
 
 
 def _overrides(args: argparse.Namespace) -> dict:
     """Scenario fields named by flags; ``--set`` YAML comes last and wins."""
-    import yaml
-
     out: dict = {}
     for flag, field in (("rule", "rule"), ("mo", "m_o"), ("no", "n_o"), ("seed", "seed"),
                         ("delivery", "delivery")):
@@ -32,28 +32,94 @@ def _overrides(args: argparse.Namespace) -> dict:
     if solver:
         out["solver"] = solver
     for text in args.set or []:
-        try:
-            extra = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            raise ScenarioError(f"--set {text!r}: not valid YAML: {err}") from err
-        if not isinstance(extra, dict):
-            raise ScenarioError(f"--set {text!r}: expected 'field: value'")
-        merge_overrides(out, extra)
+        merge_overrides(out, parse_override(text, f"--set {text!r}"))
     return out
+
+
+# Flag types: a bad value is an argparse error naming the flag (exit 2) before any work.
+
+
+def _count(minimum: int):
+    def count(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+        return value
+
+    return count
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
+def _output(path: str) -> str:
+    """A file the run writes at its end, checked before the run starts: a directory that does
+    not exist or a place that cannot be written would lose the work."""
+    p = Path(path)
+    if p.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is a directory")
+    if not p.parent.is_dir():
+        raise argparse.ArgumentTypeError(f"directory {p.parent} does not exist")
+    existed = p.exists()
+    try:
+        with open(p, "a"):
+            pass
+    except OSError as err:
+        raise argparse.ArgumentTypeError(f"cannot write {path}: {err.strerror}") from None
+    if not existed:
+        p.unlink()
+    return path
+
+
+def _plot(path: str) -> str:
+    """An output file whose suffix names a format matplotlib writes."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = Path(path).suffix.lstrip(".").lower()
+    if suffix not in formats:
+        raise argparse.ArgumentTypeError(f"unknown plot format {suffix or '(no suffix)'!r} "
+                                         f"(one of {', '.join(sorted(formats))})")
+    return _output(path)
+
+
+def _objects_left(scenario) -> int:
+    """How many objects do not yet rest in their goals; says so if none or fewer than m_o."""
+    from dualarm_mpc.mld import State
+    from dualarm_mpc.planner import at_rest_in_goal
+
+    left = int((~at_rest_in_goal(scenario, State.initial(scenario))).sum())
+    if not left:
+        print("nothing to do: every object already rests in its goal")
+    elif left < scenario.m_o:
+        print(f"note: m_o = {scenario.m_o}, but {left} object(s) are left to deliver: a step "
+              f"delivers {left}")
+    return left
 
 
 def _scenario_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="a scenario YAML file, or table1_vc / table1_vd")
     p.add_argument("--rule", type=int, choices=(1, 2), help="1: no-throw; 2: no-juggle, no-swap")
-    p.add_argument("--mo", type=int, help="m_o, objects delivered per sequential step")
-    p.add_argument("--no", type=int, help="n_o, objects considered per sequential step")
-    p.add_argument("--seed", type=int, help="seed of random objects (table1_vd)")
+    p.add_argument("--mo", type=_count(1), help="m_o, objects delivered per sequential step")
+    p.add_argument("--no", type=_count(1), help="n_o, objects considered per sequential step")
+    p.add_argument("--seed", type=_count(0), help="seed of random objects (table1_vd)")
     p.add_argument("--delivery", choices=("reach", "rest"), help="what 'delivered' means")
-    p.add_argument("--time-limit", type=float, help="seconds per horizon of a step")
+    p.add_argument("--time-limit", type=_seconds, help="seconds per horizon of a step")
     p.add_argument("--search", choices=("skeleton", "monolithic"),
                    help="solve each horizon by the skeleton search (default) or as one MILP")
     p.add_argument("--set", action="append", metavar="YAML",
-                   help="override any scenario field, e.g. --set 'max_speed: 0.3' (repeatable)")
+                   help="override any scenario field, e.g. --set 'max_speed: 0.3' or "
+                   "--set 'solver.time_limit_s: 5' (repeatable)")
 
 
 def _check(scenario, joint: bool, file=sys.stdout):
@@ -118,15 +184,19 @@ def cmd_plan(args: argparse.Namespace) -> int:
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o}), delivery {scenario.delivery}")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
         return 3
-    print(f"{'step':>4}  {'delivered':<22} {'T':>3} {'binaries':>8}  {'status':<10} "
-          f"{'solve [s]':>9}  {'cost':>7}")
+    left = _objects_left(scenario)
+    if left:
+        print(f"{'step':>4}  {'delivered':<22} {'T':>3} {'binaries':>8}  {'status':<10} "
+              f"{'solve [s]':>9}  {'cost':>7}")
     count = [0]
 
     def progress(seg) -> None:
         count[0] += 1
         names = ",".join(scenario.objects[j].name.removeprefix("object") for j in seg.delivered)
+        fewer = len(seg.objects) < scenario.m_o  # the last objects: m_o shrinks to them
         print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
-              f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}", flush=True)
+              f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}"
+              + (f"  (m_o = {len(seg.objects)}: the objects left)" if fewer else ""), flush=True)
 
     def tried(res) -> None:  # a horizon without a plan: say so, a search is never silent
         if not res.status.has_solution:
@@ -144,8 +214,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         return 3
     check = verify(scenario, result)
     result = dataclasses.replace(result, verified=check.ok)
-    print(f"total: {sum(len(s.delivered) for s in result.segments)}/{scenario.n_objects} "
-          f"delivered, cost {result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
+    resting = sum(d is not None for d in result.delivered_step)
+    already = f" ({scenario.n_objects - left} already there)" if left < scenario.n_objects else ""
+    print(f"total: {resting}/{scenario.n_objects} resting in their goals{already}, cost "
+          f"{result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
           f"(CPU {result.total_cpu_time_s:.2f} s)")
     _save_plan(result, args, scenario)
     if result.partial:
@@ -187,6 +259,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
         return 3
+    _objects_left(scenario)
     print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")
 
     def progress(r) -> None:
@@ -220,14 +293,15 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(run=cmd_check)
     p = sub.add_parser("plan", help="plan the whole task (sequential transportation) and verify it")
     _scenario_arguments(p)
-    p.add_argument("--out", help="write the plan JSON here")
-    p.add_argument("--plot", help="write a PNG of the plan here")
+    p.add_argument("--out", type=_output, help="write the plan JSON here")
+    p.add_argument("--plot", type=_plot, help="write a PNG (or PDF, SVG, ...) of the plan here")
     p.set_defaults(run=cmd_plan)
     p = sub.add_parser("simulate", help="run the receding-horizon planner on the robot in Drake")
     _scenario_arguments(p)
-    p.add_argument("--duration", type=float, help="simulated seconds (default: by object count)")
-    p.add_argument("--html", help="write the self-contained Meshcat replay here")
-    p.add_argument("--summary", help="write the summary JSON here")
+    p.add_argument("--duration", type=_seconds,
+                   help="simulated seconds (default: by object count)")
+    p.add_argument("--html", type=_output, help="write the self-contained Meshcat replay here")
+    p.add_argument("--summary", type=_output, help="write the summary JSON here")
     p.set_defaults(run=cmd_simulate)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

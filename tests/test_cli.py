@@ -187,3 +187,110 @@ def test_infeasible_task_exits_nonzero_with_the_reason(tmp_path, capsys) -> None
     assert code != 0
     assert "no-throw" in err and "object1" in err
     assert not out.exists()
+
+
+# --- issue 7: bad input is refused before the work, nothing to do is not an error --------------
+
+
+def _never_plan(monkeypatch) -> None:
+    import dualarm_mpc.planner
+
+    def plan(*args, **kwargs):
+        raise AssertionError("planned although the input was bad")
+
+    monkeypatch.setattr(dualarm_mpc.planner, "plan", plan)
+
+
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [
+        ("--out", "{tmp}/missing/plan.json", "argument --out: directory {tmp}/missing does not"),
+        ("--out", "{tmp}", "argument --out: {tmp} is a directory"),
+        ("--out", "/proc/plan.json", "argument --out: cannot write /proc/plan.json"),
+        ("--plot", "{tmp}/plan.xyz", "argument --plot: unknown plot format 'xyz'"),
+        ("--plot", "{tmp}/plan", "argument --plot: unknown plot format '(no suffix)'"),
+        ("--plot", "{tmp}/missing/plan.png", "argument --plot: directory {tmp}/missing does not"),
+    ],
+)
+def test_output_paths_are_checked_before_planning(tmp_path, capsys, monkeypatch, flag, value,
+                                                  message) -> None:
+    """Before: the plan was made, then writing it failed with a traceback and the work was
+    lost."""
+    _never_plan(monkeypatch)
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    with pytest.raises(SystemExit) as exit_:
+        main(["plan", str(path), flag, value.format(tmp=tmp_path)])
+    assert exit_.value.code == 2
+    assert message.format(tmp=tmp_path) in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.yaml"]  # the probe left nothing
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["simulate", "{s}", "--duration", "0"], "argument --duration: must be a positive"),
+        (["simulate", "{s}", "--duration", "inf"], "argument --duration: must be a positive"),
+        (["simulate", "{s}", "--duration", "-2"], "argument --duration: must be a positive"),
+        (["simulate", "{s}", "--html", "{tmp}/no/r.html"], "argument --html: directory"),
+        (["simulate", "{s}", "--summary", "{tmp}/no/s.json"], "argument --summary: directory"),
+        (["plan", "{s}", "--seed", "-1"], "argument --seed: must be >= 0, got -1"),
+        (["plan", "{s}", "--mo", "0"], "argument --mo: must be >= 1, got 0"),
+        (["plan", "{s}", "--time-limit", "nan"], "argument --time-limit: must be a positive"),
+    ],
+)
+def test_bad_flags_name_the_flag(tmp_path, capsys, args, message) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    with pytest.raises(SystemExit) as exit_:
+        main([a.format(s=path, tmp=tmp_path) for a in args])
+    assert exit_.value.code == 2
+    assert message.format(tmp=tmp_path) in capsys.readouterr().err
+
+
+def test_set_takes_field_paths_and_yaml_1_2_numbers(tmp_path, capsys) -> None:
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    out = tmp_path / "plan.json"
+    code = main(["plan", str(path), "--set", "solver.mip_rel_gap: 1e-3",
+                 "--set", "objects[2].grasp_half_size: 0.03", "--out", str(out)])
+    assert code == 0, capsys.readouterr().err
+    assert json.loads(out.read_text())["objects"][2]["grasp_half_size"] == 0.03
+
+
+def test_nothing_to_do_exits_zero_and_writes_the_plan(tmp_path, capsys) -> None:
+    """Before: a crash (no trajectory)."""
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    out = tmp_path / "plan.json"
+    code = main(["plan", str(path), "--set", "objects: [{name: a, position: [0.3, 0.6], "
+                 "goal: red}]", "--mo", "1", "--no", "1", "--out", str(out)])
+    stdout = capsys.readouterr().out
+    assert code == 0
+    assert "nothing to do: every object already rests in its goal" in stdout
+    assert "total: 1/1 resting in their goals (1 already there)" in stdout
+    data = json.loads(out.read_text())
+    assert data["segments"] == [] and data["delivered_step"] == [0]
+
+
+def test_objects_already_in_their_goals_count_as_resting(tmp_path, capsys) -> None:
+    """Before: "1/2 delivered", next to "every object rests in its goal"."""
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    code = main(["plan", str(path), "--set", "objects: [{name: a, position: [0.3, 0.6], "
+                 "goal: red}, {name: b, position: [0.1, 0.1], goal: red}]"])
+    stdout = capsys.readouterr().out
+    assert code == 0
+    assert "total: 2/2 resting in their goals (1 already there)" in stdout
+
+
+def test_an_m_o_beyond_the_objects_left_is_told(tmp_path, capsys) -> None:
+    """Before: m_o was lowered to the objects left without a word."""
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    assert main(["plan", str(path), "--mo", "3", "--no", "3", "--set", "objects: "
+                 "[{name: a, position: [0.1, 0.1], goal: red}, {name: b, position: [-0.1, 0.2], "
+                 "goal: blue}]"]) == 0
+    stdout = capsys.readouterr().out
+    assert "note: m_o = 3, but 2 object(s) are left to deliver: a step delivers 2" in stdout
+    assert "(m_o = 2: the objects left)" in stdout
