@@ -268,7 +268,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f"{r.horizon if r.horizon is not None else '-':>3}  {r.wall_s:>9.3f}  {names}"
               + (f"  ({r.note})" if r.note else ""), flush=True)
 
-    summary = simulate(scenario, args.duration, args.html, progress)
+    meshcat = None
+    if args.meshcat:
+        from dualarm_mpc.recording import start_meshcat
+
+        meshcat = start_meshcat(live=True)
+        print(f"Meshcat: {meshcat.web_url()} (open it in a browser to watch the run live; "
+              "it replays the run when the run ends)", flush=True)
+    summary = simulate(scenario, args.duration, args.html, progress, meshcat=meshcat)
     n_in = sum(d is not None for d in summary.delivered_time_s)
     print(f"end: t = {summary.sim_time_s:.1f} s, {n_in}/{scenario.n_objects} objects resting in "
           f"their goals, real-time factor {summary.realtime_factor:.2f}")
@@ -276,7 +283,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         summary.save(args.summary)
         print(f"wrote {args.summary}")
     if args.html:
-        print(f"wrote {args.html} (open it in a browser; press play in the Animations panel)")
+        print(f"wrote {args.html} (open it in a browser: it plays the run from the start)")
     if not summary.all_delivered:
         print("error: not every object ends at rest inside its goal", file=sys.stderr)
         return 4
@@ -302,6 +309,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="simulated seconds (default: by object count)")
     p.add_argument("--html", type=_output, help="write the self-contained Meshcat replay here")
     p.add_argument("--summary", type=_output, help="write the summary JSON here")
+    p.add_argument("--meshcat", action="store_true",
+                   help="start Drake's Meshcat server, print its URL and draw the run there live, "
+                   "at real time")
     p.set_defaults(run=cmd_simulate)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,

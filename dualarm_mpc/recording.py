@@ -1,22 +1,80 @@
-"""Headless Meshcat recording of a run, saved as one self-contained HTML file (design §4)."""
+"""Meshcat for a run: the view a person sees (camera on the table, clutter hidden), the live
+server, and the headless recording saved as one self-contained HTML file (design §4)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 from pydrake.geometry import Box, Meshcat, MeshcatParams, Rgba
 from pydrake.math import RigidTransform
 
-from dualarm_mpc.station import goal_colour
+from dualarm_mpc.station import Station, goal_colour
+
+# The view is framed for a 1280×800 window (a wider one only adds margin at the sides), through a
+# narrower lens than Meshcat's default 75° (vertical): less distorted, the near arms not huge.
+CAMERA = "/Cameras/default/rotated/<object>"
+FOV_DEG = 30.0
+ASPECT = 1280 / 800
+ELEVATION_DEG = 60.0  # below the horizontal: steep enough that the columns hide no goal
+WORK_HEIGHT = 0.4  # m: the arms' links move this high over the table (models/dual_scara.sdf)
+FILL = 0.92  # of the view, in its tighter direction, the table takes (the rest is margin)
+# Drawn by Meshcat itself or by Drake's contact visualizer: they clutter the view of the work.
+# Hidden, not deleted: each has its checkbox in the Scene panel.
+HIDDEN = ("/Grid", "/Axes", "/drake/contact_forces")
+# Meshcat collapses its controls at load; a replay is driven from them (play, pause, time).
+OPEN_CONTROLS = "<script>viewer.gui.open(); viewer.gui.__folders.Scene.close();</script>\n</body>"
 
 
-def start_meshcat() -> Meshcat:
-    """A Meshcat server with no browser attached, on any free port."""
-    return Meshcat(MeshcatParams(port=0))
+def start_meshcat(live: bool = False) -> Meshcat:
+    """A Meshcat server: ``live``, on Drake's usual port (7000, or the next free one) for a
+    browser to watch; otherwise on any free port, with no browser attached."""
+    return Meshcat() if live else Meshcat(MeshcatParams(port=0))
 
 
-def start_recording(meshcat: Meshcat) -> None:
-    meshcat.StartRecording(frames_per_second=32.0, set_visualizations_while_recording=False)
+def start_recording(meshcat: Meshcat, live: bool = False) -> None:
+    """Record from now on; ``live``: the browser attached follows the run as it goes."""
+    meshcat.StartRecording(frames_per_second=32.0, set_visualizations_while_recording=live)
+
+
+def camera_pose(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera position and target (world, z up) that show every one of ``points`` (n × 3) from
+    in front (−y) and above, as large as the view allows.
+
+    With the camera's right r, up u and forward f, a point p is inside the view's left and right
+    planes iff −t ≤ r·(p − C) / f·(p − C) ≤ t (t: tangent of half the field of view across).
+    Writing C = x·r + y·u + z·f, that is x − (−t)·z ≤ A and −x + t·z ≤ B for every p, with
+    A = min (r + t·f)·p and B = min (t·f − r)·p: the camera can come in as far as
+    z = (A + B) / 2t, centred at x = (A − B) / 2. The same holds for y with u and the tangent of
+    half the field of view upwards; the nearer bound on z of the two is the one that holds."""
+    el = np.radians(ELEVATION_DEG)
+    f = np.array([0.0, np.cos(el), -np.sin(el)])
+    r = np.array([1.0, 0.0, 0.0])
+    u = np.cross(r, f)
+    tan_up = FILL * np.tan(np.radians(FOV_DEG) / 2)
+    position, depth = np.zeros(3), np.inf
+    for axis, t in ((r, tan_up * ASPECT), (u, tan_up)):
+        a = (points @ (axis + t * f)).min()
+        b = (points @ (t * f - axis)).min()
+        position += (a - b) / 2 * axis
+        depth = min(depth, (a + b) / (2 * t))
+    position += depth * f
+    target = position - position[2] / f[2] * f  # where the view's centre meets the table
+    return position, target
+
+
+def show_the_work(meshcat: Meshcat, station: Station) -> None:
+    """Point the camera at the table, the arms' reach included, and hide the clutter. Call it
+    after the Simulator's initialization, which deletes and redraws the contact forces."""
+    x0, x1, y0, y1 = station.table
+    table = [[x, y, 0.0] for x in (x0, x1) for y in (y0, y1)]
+    reach = station.link_lengths[0]  # the elbows' circles around the bases, at the arms' height
+    elbows = [[*(base + (dx, dy)), WORK_HEIGHT] for base in station.arm_bases
+              for dx in (-reach, reach) for dy in (-reach, reach)]
+    meshcat.SetProperty(CAMERA, "fov", FOV_DEG)
+    meshcat.SetCameraPose(*camera_pose(np.array(table + elbows)))
+    for path in HIDDEN:
+        meshcat.SetProperty(path, "visible", False)
 
 
 def show_goal(meshcat: Meshcat, name: str, box: list[float], t: float) -> None:
@@ -31,13 +89,16 @@ def show_goal(meshcat: Meshcat, name: str, box: list[float], t: float) -> None:
     animation.SetProperty(frame, path, "visible", True)
 
 
-def save_recording(meshcat: Meshcat, path: str | Path) -> int:
-    """Stop, publish and write the recording as standalone HTML; returns its size in bytes."""
+def save_recording(meshcat: Meshcat, path: str | Path | None) -> None:
+    """Stop and publish the recording (a live browser can replay it), and write it to ``path``
+    as standalone HTML with its controls open: it plays once from the start as the page loads."""
     meshcat.StopRecording()
     meshcat.PublishRecording()
+    if path is None:
+        return
     html = meshcat.StaticHtml()
-    Path(path).write_text(html)
-    return len(html.encode())
+    head, _, tail = html.rpartition("</body>")
+    Path(path).write_text(head + OPEN_CONTROLS + tail)
 
 
 def is_self_contained(html: str) -> bool:
@@ -45,4 +106,3 @@ def is_self_contained(html: str) -> bool:
     lowered = html.lower()
     return not any(tag in lowered for tag in ('<script src="http', "<script src='http",
                                                '<link rel="stylesheet" href="http'))
-

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator
@@ -115,20 +116,26 @@ def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
 
 def simulate(scenario: Scenario, duration: float | None = None, html: str | Path | None = None,
              progress: Callable[[Replan], None] | None = None,
-             disturb: Disturbance | None = None) -> Summary:
+             disturb: Disturbance | None = None, meshcat: Meshcat | None = None) -> Summary:
     """Run the closed loop; write the Meshcat replay to ``html`` if given. ``disturb`` adds
-    events decided during the run; the summary lists them after the scenario's."""
+    events decided during the run; the summary lists them after the scenario's. ``meshcat``: a
+    live server to draw the run in as it goes, at real time, and to replay it at the end."""
     duration = default_duration(scenario) if duration is None else duration
-    meshcat = recording.start_meshcat() if html else None
+    live = meshcat is not None
+    if not live and html:
+        meshcat = recording.start_meshcat()
     dual = MakeDiagram(scenario, meshcat)
     simulator = Simulator(dual.diagram)
     context = simulator.get_mutable_context()
     planner_context = dual.planner.GetMyContextFromRoot(context)
-    if meshcat is not None:
-        recording.start_recording(meshcat)
+    if live:
+        simulator.set_target_realtime_rate(1.0)  # at the speed a person watches
     events = sorted(scenario.events, key=lambda e: e.time)
     wall0 = time.perf_counter()
     simulator.Initialize()
+    if meshcat is not None:  # after: the page shows the scene at t = 0 while the replay loads
+        recording.show_the_work(meshcat, dual.station)
+        recording.start_recording(meshcat, live)
     seen = 0
     applied: list[Event] = []
     finished_at = None

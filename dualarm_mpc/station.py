@@ -88,6 +88,7 @@ class Station:
     travel_height: float  # hand height when it holds nothing
     time_step: float
     slide_time_constant: float | None  # the table's viscous drag on sliding objects (Gripper)
+    table: list[float]  # the table top drawn: [x0, x1, y0, y1]
 
     @property
     def n_objects(self) -> int:
@@ -256,6 +257,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         travel_height=travel,
         time_step=time_step,
         slide_time_constant=scenario.slide_time_constant,
+        table=_table_extent(scenario),
     )
 
 

@@ -1,0 +1,187 @@
+"""What a person sees of a run: the camera's framing, the replay HTML opened in headless Chromium,
+and the live Meshcat of ``dualarm-mpc simulate --meshcat``.
+
+The browser test uses Debian's ``chromium`` and ``chromium-driver`` (``.ci/run`` installs them),
+driven by selenium; where either is missing it is skipped, with the reason.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import re
+import shutil
+import urllib.request
+
+import matplotlib.image
+import numpy as np
+import pytest
+
+try:
+    from selenium import webdriver
+    from selenium.webdriver.support.wait import WebDriverWait
+except ImportError:  # the ``test`` extra is not installed
+    webdriver = None
+
+from dualarm_mpc import recording
+from dualarm_mpc.cli import main
+from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.simulate import simulate
+
+# One object, §V-D bounds; the replan budget out of the way, so the arms move from the start.
+SCENE = """\
+name: viewer
+workspace: [-0.9, 0.9, -0.3, 0.9]
+max_speed: 0.2
+max_force: 0.1
+goals:
+  red: [0.225, 0.575, 0.65, 0.95]
+  green: [-0.175, 0.175, 0.85, 1.15]
+objects:
+  - {name: object1, position: [0.1, 0.1], goal: red}
+rule: 1
+m_o: 1
+n_o: 1
+delivery: rest
+goal_margin: 0.03
+solver: {time_limit_s: 10, replan_budget_s: 60}
+"""
+RUN_S = 3.0
+
+CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
+# Chromium's own traffic (updates, sync, QUIC probes) off, so any request is the page's; WebGL
+# in software (no GPU here), opted in.
+FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--enable-unsafe-swiftshader")
+VIEW = {"width": 1280, "height": 800, "deviceScaleFactor": 1, "mobile": False}
+NETWORK = ("http", "https", "ws", "wss", "ftp")
+# In the page, three.js of Meshcat's viewer (y up): the table top's corners in normalized device
+# coordinates (the view is [-1, 1]²), and the pose of the right arm's second link at two times.
+TABLE_CORNERS_JS = """
+const THREE = MeshCat.THREE;
+const top = viewer.scene_tree.find(['drake', 'illustration', 'table_top']).object;
+const box = new THREE.Box3().setFromObject(top);
+return [[box.min.x, box.min.z], [box.max.x, box.min.z], [box.max.x, box.max.z],
+        [box.min.x, box.max.z]].map(([x, z]) => {
+  const p = new THREE.Vector3(x, box.max.y, z).project(viewer.camera);
+  return [p.x, p.y];
+});
+"""
+LINK_AT_JS = """
+const link = viewer.scene_tree.find(['drake', 'illustration', 'dual_scara', 'right_link2']).object;
+return arguments[0].map(t => {
+  viewer.animator.seek(t);
+  return [...link.position.toArray(), ...link.quaternion.toArray()];
+});
+"""
+
+
+def polygon_area(corners: np.ndarray) -> float:
+    x, y = corners.T
+    return abs(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)) / 2
+
+
+@pytest.fixture(scope="module")
+def scene_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scene") / "viewer.yaml"
+    path.write_text(SCENE)
+    return path
+
+
+@pytest.fixture(scope="module")
+def chromium(tmp_path_factory):
+    """A headless Chromium at a 1280×800 view; skipped, with the reason, where there is none."""
+    if CHROMIUM is None or CHROMEDRIVER is None:
+        pytest.skip("Chromium is not installed: apt-get install chromium chromium-driver "
+                    "(.ci/run does)")
+    if webdriver is None:
+        pytest.skip("selenium is not installed: pip install -e '.[test]'")
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM
+    for flag in (*FLAGS, f"--user-data-dir={tmp_path_factory.mktemp('chromium')}"):
+        options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
+    driver = webdriver.Chrome(options=options,
+                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
+    driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", VIEW)
+    yield driver
+    driver.quit()
+
+
+@pytest.fixture(scope="module")
+def replay(chromium, scene_file, tmp_path_factory):
+    path = tmp_path_factory.mktemp("replay") / "replay.html"
+    simulate(load_scenario(str(scene_file)), duration=RUN_S, html=path)
+    return path
+
+
+def test_the_camera_frames_every_point_it_is_given_as_large_as_the_view_allows() -> None:
+    """Projected through the camera of :func:`recording.camera_pose`, every point lies inside
+    the view less the margin, and some point on each axis touches that margin."""
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        points = rng.uniform([-1.5, -0.5, 0.0], [1.5, 2.0, 0.5], size=(8, 3))
+        position, target = recording.camera_pose(points)
+        forward = (target - position) / np.linalg.norm(target - position)
+        right = np.cross(forward, [0.0, 0.0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, forward)
+        d = points - position
+        tan_up = np.tan(np.radians(recording.FOV_DEG) / 2)
+        ndc = np.stack([d @ right / (d @ forward) / (tan_up * recording.ASPECT),
+                        d @ up / (d @ forward) / tan_up], axis=1)
+        assert np.all(np.abs(ndc) <= recording.FILL + 1e-9)
+        assert np.isclose(np.abs(ndc).max(), recording.FILL)
+        assert target[2] == pytest.approx(0.0, abs=1e-12)  # the camera orbits a point on the table
+
+
+def test_the_replay_plays_offline_in_chromium_with_the_table_filling_the_view(
+        chromium, replay) -> None:
+    chromium.get_log("performance")  # what the browser did before the page is not the page's
+    chromium.get(replay.as_uri())
+    loaded = "return typeof viewer === 'object' && viewer.animator.duration > 0"
+    WebDriverWait(chromium, 120).until(lambda driver: driver.execute_script(loaded))
+
+    events = [json.loads(e["message"])["message"] for e in chromium.get_log("performance")]
+    urls = [e["params"]["request"]["url"] for e in events
+            if e["method"] == "Network.requestWillBeSent"]
+    assert replay.as_uri() in urls  # the log is not empty: the page itself was requested
+    assert [u for u in urls if u.split(":")[0] in NETWORK] == []
+    assert [e for e in chromium.get_log("browser") if e["level"] == "SEVERE"] == []
+
+    pixels = matplotlib.image.imread(io.BytesIO(chromium.get_screenshot_as_png()), format="png")
+    assert pixels.shape[:2] == (VIEW["height"], VIEW["width"])
+    assert pixels[..., :3].std() > 0.05, "the canvas is blank"
+
+    corners = np.array(chromium.execute_script(TABLE_CORNERS_JS))
+    assert np.all(np.abs(corners) <= 1), f"the table is cut off: {corners}"
+    assert polygon_area(corners) / 4 > 0.5, "the table fills less than half the view"
+    assert chromium.execute_script("return viewer.gui.closed") is False  # controls open
+
+    duration = chromium.execute_script("return viewer.animator.duration")
+    assert duration == pytest.approx(RUN_S, abs=0.1)
+    start, end = np.array(chromium.execute_script(LINK_AT_JS, [0.0, duration]))
+    assert np.abs(start - end).max() > 1e-3, "the right arm's link 2 did not move in the replay"
+
+
+def test_cli_meshcat_serves_the_run_live_and_still_writes_the_replay(
+        scene_file, tmp_path, capsys, monkeypatch) -> None:
+    started = []
+
+    def start_meshcat(live: bool = False):
+        started.append(real_start(live))
+        return started[-1]
+
+    real_start = recording.start_meshcat
+    monkeypatch.setattr(recording, "start_meshcat", start_meshcat)
+    html = tmp_path / "replay.html"
+    main(["simulate", str(scene_file), "--duration", "2", "--meshcat", "--html", str(html)])
+    printed = capsys.readouterr().out
+    url = re.search(r"Meshcat: (http://\S+)", printed)
+    assert url, printed
+    assert url.group(1) == started[0].web_url()
+    # The server still answers (the test holds it): the viewer's page, from this machine only.
+    no_proxy = urllib.request.build_opener(urllib.request.ProxyHandler({}))
+    assert b"MeshCat" in no_proxy.open(url.group(1), timeout=10).read()
+    assert recording.is_self_contained(html.read_text())
