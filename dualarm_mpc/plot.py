@@ -1,7 +1,8 @@
-"""Plot a plan: hand and object paths over the goal boxes, and a grasp timeline per arm."""
+"""Plot a plan: where every object goes, the hands' paths step by step, a grasp timeline."""
 
 from __future__ import annotations
 
+from collections import defaultdict
 from pathlib import Path
 
 import matplotlib
@@ -9,12 +10,17 @@ import matplotlib
 matplotlib.use("Agg")  # files only; no display on CI or a headless robot PC
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch, Rectangle  # noqa: E402
 
 from dualarm_mpc.plan import Plan  # noqa: E402
 
 GOAL_COLOURS = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue"}
 ARM_NAMES = ("arm 1 (right)", "arm 2 (left)")
+ARM_COLOURS = ("#e68c26", "#338c99")  # the arms' colours in the replay (models/dual_scara.sdf)
+STEPS_PER_ROW = 5
 
 
 def colour(goal: str) -> str:
@@ -22,52 +28,106 @@ def colour(goal: str) -> str:
 
 
 def plot_plan(plan: Plan, path: str | Path, title: str = "") -> None:
-    """Write a PNG: the table top (paths, goals, hand range) above the grasp timelines."""
+    """Write the PNG of :func:`plan_figure`."""
+    fig = plan_figure(plan, title)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plan_figure(plan: Plan, title: str = "") -> Figure:
+    """Three parts, every mark in a legend. Above, the whole plan on the table top: each
+    object's path from start to planned end (objects that end on one point share its label).
+    In the middle, one panel per sequential step: the hands' paths and the objects moved in it
+    (drawn together, the hands' paths of the whole plan are a tangle). Below, which object each
+    hand holds over time."""
     t = plan.trajectory
-    fig = plt.figure(figsize=(9, 10))
-    grid = fig.add_gridspec(2, 1, height_ratios=[3, 1])
+    ends = np.cumsum([0] + [seg.horizon for seg in plan.segments])
+    rows = -(-len(plan.segments) // STEPS_PER_ROW)
+    # The step panels show where anything moves, goals included, on one scale.
+    boxes = np.array(list(plan.goals.values()))
+    points = np.concatenate([t.hand_pos.reshape(-1, 2), t.object_pos.reshape(-1, 2),
+                             boxes[:, [0, 2]], boxes[:, [1, 3]]])
+    lo, hi = points.min(axis=0) - 0.05, points.max(axis=0) + 0.05
+    row_height = 10 / STEPS_PER_ROW * (hi - lo)[1] / (hi - lo)[0] + 0.4
+    fig = plt.figure(figsize=(12, 6.5 + row_height * rows + 2))
+    grid = fig.add_gridspec(3, 1, height_ratios=[6.5, row_height * rows, 2])
     ax = fig.add_subplot(grid[0])
-    xmin, xmax, ymin, ymax = plan.workspace
-    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls="--",
-                           ec="0.5", label="hand range"))
-    for name, (gx0, gx1, gy0, gy1) in plan.goals.items():
-        ax.add_patch(Rectangle((gx0, gy0), gx1 - gx0, gy1 - gy0, color=colour(name), alpha=0.2))
-        ax.text((gx0 + gx1) / 2, gy1 + 0.01, name, ha="center", va="bottom", fontsize=8)
-    for i, style in enumerate(("-", "--")):
-        ax.plot(t.hand_pos[:, i, 0], t.hand_pos[:, i, 1], style, color="k", lw=1, alpha=0.6,
-                label=ARM_NAMES[i])
+    _table(ax, plan)
     for j, o in enumerate(plan.objects):
-        p = t.object_pos[:, j]
-        c = colour(o["goal"])
-        ax.plot(p[:, 0], p[:, 1], "-", color=c, lw=1.5)
-        ax.plot(*p[0], "s", color=c, mfc="none")
-        ax.plot(*p[-1], "s", color=c)
-        ax.annotate(str(j + 1), p[0], fontsize=7, xytext=(3, -8), textcoords="offset points")
-    ax.set_aspect("equal")
+        _object_path(ax, t.object_pos[:, j], colour(o["goal"]))
+        ax.annotate(str(j + 1), t.object_pos[0, j], fontsize=7, xytext=(4, -9),
+                    textcoords="offset points")
+    at_end = defaultdict(list)  # planned end (to 1 mm) → the objects that end there
+    for j, p in enumerate(t.object_pos[-1]):
+        at_end[tuple(np.round(p, 3))].append(str(j + 1))
+    for end, names in at_end.items():
+        ax.annotate(",".join(names), end, fontsize=7, xytext=(4, 3), textcoords="offset points")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(loc="lower right", fontsize=8)
     ax.set_title(title or f"rule {plan.rule}, cost {plan.total_cost:.3f}, "
                  f"solve {plan.total_solve_time_s:.1f} s")
-    tl = fig.add_subplot(grid[1])
+    ax.legend(handles=[
+        Line2D([], [], ls="--", color="0.5", label="hand range"),
+        Patch(color="0.6", alpha=0.3, label="goal box"),
+        Line2D([], [], color="0.4", lw=1.5, label="object path, in its goal's colour"),
+        Line2D([], [], ls="", marker="s", color="0.4", mfc="white", ms=7,
+               label="object start, with its number"),
+        Line2D([], [], ls="", marker="s", color="0.4", ms=7, label="object end (planned)"),
+        *(Line2D([], [], color=c, marker=".", lw=1, ms=5,
+                 label=f"{name} hand (below), a dot per {plan.dt:g} s")
+          for name, c in zip(ARM_NAMES, ARM_COLOURS, strict=True)),
+    ], loc="upper left", bbox_to_anchor=(1.02, 1), fontsize=8, frameon=False)
+    panels = grid[1].subgridspec(rows, STEPS_PER_ROW)
+    for s, seg in enumerate(plan.segments):
+        p = fig.add_subplot(panels[s // STEPS_PER_ROW, s % STEPS_PER_ROW])
+        _table(p, plan, names=False)
+        p.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), xticks=[], yticks=[])
+        k = slice(ends[s], ends[s + 1] + 1)
+        for j in np.flatnonzero(np.ptp(t.object_pos[k], axis=0).max(axis=1) > 1e-6):
+            _object_path(p, t.object_pos[k, j], colour(plan.objects[j]["goal"]))
+        for i in range(2):
+            p.plot(*t.hand_pos[k, i].T, ".-", color=ARM_COLOURS[i], lw=1, ms=4)
+        delivered = ",".join(str(j + 1) for j in seg.delivered) or "none"
+        p.set_title(f"step {s + 1}, {ends[s] * plan.dt:g}–{ends[s + 1] * plan.dt:g} s: "
+                    f"delivers {delivered}", fontsize=8)
+    tl = fig.add_subplot(grid[2])
     k = np.arange(len(t.grasp))
     for i in range(2):
         for j, o in enumerate(plan.objects):
             on = t.grasp[:, i, j].astype(bool)
             if on.any():
-                tl.broken_barh(_runs(k[on]), (1 - i - 0.4, 0.8), color=colour(o["goal"]))
-                first = k[on][0]
-                tl.text(first + 0.1, 1 - i, str(j + 1), va="center", fontsize=7)
-    start = 0
-    for seg in plan.segments:
-        start += seg.horizon
-        tl.axvline(start, color="0.7", lw=0.8)
+                tl.broken_barh([(s * plan.dt, n * plan.dt) for s, n in _runs(k[on])],
+                               (1 - i - 0.4, 0.8), color=colour(o["goal"]))
+                tl.text((k[on][0] + 0.1) * plan.dt, 1 - i, str(j + 1), va="center", fontsize=7)
+    for end in ends[1:]:
+        tl.axvline(end * plan.dt, color="0.7", lw=0.8)
+    tl.legend(handles=[Patch(color="0.6", label="holds object n, in its goal's colour"),
+                       Line2D([], [], color="0.7", lw=0.8, label="end of a sequential step")],
+              loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8, frameon=False)
     tl.set_yticks([1, 0], ARM_NAMES)
-    tl.set_xlabel("step k (grey lines: ends of sequential steps)")
-    tl.set_xlim(0, max(len(k) - 1, 1))
+    tl.set_xlabel("time [s]")
+    tl.set_xlim(0, max(len(k) - 1, 1) * plan.dt)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
+
+
+def _table(ax: Axes, plan: Plan, names: bool = True) -> None:
+    """Hand range and goal boxes, metres, equal axes."""
+    xmin, xmax, ymin, ymax = plan.workspace
+    ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls="--",
+                           ec="0.5"))
+    for name, (gx0, gx1, gy0, gy1) in plan.goals.items():
+        ax.add_patch(Rectangle((gx0, gy0), gx1 - gx0, gy1 - gy0, color=colour(name), alpha=0.2))
+        if names:
+            ax.text((gx0 + gx1) / 2, gy1 + 0.01, name, ha="center", va="bottom", fontsize=8)
+    ax.set_aspect("equal")
+
+
+def _object_path(ax: Axes, p: np.ndarray, c: str) -> None:
+    """An object's path (K × 2): hollow square at its start, filled at its end."""
+    ax.plot(p[:, 0], p[:, 1], "-", color=c, lw=1.5)
+    ax.plot(*p[0], "s", color=c, mfc="white", ms=7)
+    ax.plot(*p[-1], "s", color=c, ms=7)
 
 
 def _runs(steps: np.ndarray) -> list[tuple[int, int]]:
