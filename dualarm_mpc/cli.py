@@ -284,6 +284,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"wrote {args.summary}")
     if args.html:
         print(f"wrote {args.html} (open it in a browser: it plays the run from the start)")
+    if summary.interrupted:
+        print(f"interrupted at t = {summary.sim_time_s:.1f} s: the summary and replay end there",
+              file=sys.stderr)
+        return 130
     if not summary.all_delivered:
         print("error: not every object ends at rest inside its goal", file=sys.stderr)
         return 4

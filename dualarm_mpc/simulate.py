@@ -58,6 +58,7 @@ class Summary:
     # Replans that reached their wall-time budget: the robot followed the plan in force (or
     # waited at rest) while the search went on. Their times, as in ``replans``.
     replans_over_budget: list[float] = field(default_factory=list)
+    interrupted: bool = False  # stopped by Ctrl-C at ``sim_time_s``
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -140,41 +141,46 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     applied: list[Event] = []
     finished_at = None
     t = 0.0
-    while t < duration - 1e-9:
-        stop = min(t + scenario.dt, duration)
-        for e in events:
-            if t < e.time <= stop:
-                simulator.AdvanceTo(e.time)
-                _apply(e, scenario, dual, context, meshcat)
-        while disturb is not None and (look := disturb.next_time()) is not None and look <= stop:
-            simulator.AdvanceTo(max(look, context.get_time()))
-            for e in disturb(_world(dual, context)):
-                _apply(e, scenario, dual, context, meshcat)
-                applied.append(e)
-            after = disturb.next_time()
-            if after is not None and after <= look:
-                raise ValueError(f"disturb: next_time() stayed at {after} after a call")
-        simulator.AdvanceTo(stop)
-        t = stop
-        replans = dual.planner.mpc_state(planner_context).replans
-        for r in replans[seen:]:
-            if progress:
-                progress(r)
-        seen = len(replans)
-        pending = [e for e in events if e.time > t] or (
-            disturb is not None and disturb.next_time() is not None)
-        if (replans and replans[-1].status in ("done", "stuck") and not pending
-                and _all_still(dual, context)):
-            finished_at = finished_at if finished_at is not None else t
-            if t - finished_at >= SETTLE_S:
-                break
-        else:
-            finished_at = None
+    interrupted = False
+    try:
+        while t < duration - 1e-9:
+            stop = min(t + scenario.dt, duration)
+            for e in events:
+                if t < e.time <= stop:
+                    simulator.AdvanceTo(e.time)
+                    _apply(e, scenario, dual, context, meshcat)
+            while disturb is not None and (look := disturb.next_time()) is not None and look <= stop:
+                simulator.AdvanceTo(max(look, context.get_time()))
+                for e in disturb(_world(dual, context)):
+                    _apply(e, scenario, dual, context, meshcat)
+                    applied.append(e)
+                after = disturb.next_time()
+                if after is not None and after <= look:
+                    raise ValueError(f"disturb: next_time() stayed at {after} after a call")
+            simulator.AdvanceTo(stop)
+            t = stop
+            replans = dual.planner.mpc_state(planner_context).replans
+            for r in replans[seen:]:
+                if progress:
+                    progress(r)
+            seen = len(replans)
+            pending = [e for e in events if e.time > t] or (
+                disturb is not None and disturb.next_time() is not None)
+            if (replans and replans[-1].status in ("done", "stuck") and not pending
+                    and _all_still(dual, context)):
+                finished_at = finished_at if finished_at is not None else t
+                if t - finished_at >= SETTLE_S:
+                    break
+            else:
+                finished_at = None
+    except KeyboardInterrupt:  # Ctrl-C: the run so far is kept, summary and replay included
+        interrupted = True
+        t = context.get_time()
     wall = time.perf_counter() - wall0
     dual.planner.close()
     if meshcat is not None:
         recording.save_recording(meshcat, html)
-    return _summary(scenario, dual, context, t, wall, applied)
+    return _summary(scenario, dual, context, t, wall, applied, interrupted)
 
 
 def _world(dual, context) -> World:
@@ -195,7 +201,7 @@ def _all_still(dual, context) -> bool:
 
 
 def _summary(scenario: Scenario, dual, context, t: float, wall: float,
-             applied: list[Event] = ()) -> Summary:
+             applied: list[Event] = (), interrupted: bool = False) -> Summary:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
     s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
@@ -222,4 +228,5 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float,
         events=[e.__dict__ for e in [*scenario.events, *applied]],
         replans_over_budget=[round(r.t, 3) for r in s.replans
                              if r.status in ("searching", "over_budget")],
+        interrupted=interrupted,
     )

@@ -52,3 +52,21 @@ def test_ctrl_c_during_plan_writes_the_steps_so_far(tmp_path) -> None:
     data = json.loads(out.read_text())
     assert data["partial"] is True and len(data["segments"]) >= 1
     assert "(partial)" in stdout
+
+
+def test_ctrl_c_during_simulate_writes_the_summary_and_replay(tmp_path) -> None:
+    summary, html = tmp_path / "summary.json", tmp_path / "replay.html"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "dualarm_mpc.cli", "simulate", "table1_vd", "--seed", "0",
+         "--summary", str(summary), "--html", str(html)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    for line in proc.stdout:  # a replan line: the simulated time in the first column
+        if line.split() and line.split()[0].replace(".", "", 1).isdigit():
+            break
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "interrupted at t =" in stderr
+    data = json.loads(summary.read_text())
+    assert data["interrupted"] is True and data["sim_time_s"] > 0
+    assert html.stat().st_size > 0
