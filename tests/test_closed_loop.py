@@ -170,7 +170,7 @@ def assert_replans_recorded(summary: Summary, scenario: Scenario) -> None:
     assert times[-1] >= summary.sim_time_s - scenario.dt - 1e-6  # none missing at the end
     for r in replans:
         assert r["status"] in KNOWN_STATUSES, r
-        assert isinstance(r["wall_s"], float) and 0 <= r["wall_s"] < 60, r
+        assert isinstance(r["wall_s"], float) and r["wall_s"] >= 0, r
         if r["status"] not in SOLUTION_STATUSES | {"done", "stuck"}:
             assert r["note"], f"a replan without a plan must say what it kept: {r}"
     assert replans[-1]["status"] == "done"
