@@ -4,7 +4,8 @@ Rules are common sense kept across tasks (§I-B), so a rule that cannot hold tog
 task must be caught before the robot moves, and named. Each object is checked on its own: a
 one-object step from the current state — deliver it, under every rule instance over that object
 alone — at the largest horizon. For the paper's rules feasibility is monotone in T
-(:meth:`Specification.monotone_in_horizon`), so the largest horizon decides every smaller one.
+(:meth:`Specification.monotone_in_horizon`), so the largest horizon decides every smaller one
+(for other rules, every horizon is tried).
 These programs carry no cost: HiGHS stops at the first solution (tens of milliseconds), and only
 a conflict takes an infeasibility proof (about a second).
 
@@ -95,11 +96,17 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
 
 def _feasible(scenario: Scenario, state: State, spec: Specification,
               options: SolveOptions) -> Status:
-    """Whether ``spec`` has a plan at the largest horizon, decided by its MILP without cost
-    (the first solution ends the search): FEASIBLE, INFEASIBLE or TIME_LIMIT."""
-    res = HorizonProgram(scenario, state, list(spec.objects), scenario.solver.max_horizon).solve(
-        spec, options, hands=())
-    return Status.FEASIBLE if res.status.has_solution else res.status
+    """Whether ``spec`` has a plan within the largest horizon, decided by its MILPs without
+    cost (the first solution ends a search): FEASIBLE, INFEASIBLE or TIME_LIMIT. The largest
+    horizon alone decides when feasibility is monotone in T; otherwise every horizon is tried."""
+    cap = scenario.solver.max_horizon
+    undecided = False
+    for T in [cap] if spec.monotone_in_horizon() else range(1, cap + 1):
+        res = HorizonProgram(scenario, state, list(spec.objects), T).solve(spec, options, hands=())
+        if res.status.has_solution:
+            return Status.FEASIBLE
+        undecided |= res.status is not Status.INFEASIBLE
+    return Status.TIME_LIMIT if undecided else Status.INFEASIBLE
 
 
 def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[str, Formula]],

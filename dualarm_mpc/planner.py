@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 REST_TOL = 1e-6  # m/s: "at rest" in the model's own units
 CHECK_CAP_AFTER = 4  # horizons without a plan before the largest one is checked (plan_step)
-CAP_CHECK_TIME_S = 3.0  # per relaxation of that check
+CAP_CHECK_TIME_S = 3.0  # the whole of that check
 
 
 class PlanningError(RuntimeError):

@@ -62,7 +62,8 @@ def test_a_rule_keeping_both_hands_off_one_object_is_named(two) -> None:
 
 
 def test_the_bounds_alone_are_named_when_no_rule_is_to_blame(two) -> None:
-    report = check(two(max_speed=0.01, solver={"max_horizon": 6}), joint=False)
+    """Fast enough on paper (0.1 m/s for 8 steps), but |u| ≤ 0.005 cannot get a hand there."""
+    report = check(two(max_speed=0.1, max_force=0.005, solver={"max_horizon": 8}), joint=False)
     assert {c.objects for c in report.conflicts} == {("object1",), ("object2",)}
     for c in report.conflicts:
         assert c.rules == ()
@@ -84,4 +85,12 @@ def test_objects_that_conflict_only_together_show_in_the_joint_check(two) -> Non
 
 def test_a_consistent_task_passes_the_joint_check(two) -> None:
     report = check(two())
+    assert report.consistent and not report.undecided
+
+
+def test_a_rule_not_monotone_in_the_horizon_is_decided_at_every_horizon(two) -> None:
+    """``G(eta[1,2] -> WX !eta[1,2])`` (hold object 2 one step at most) does not survive
+    idling: the largest horizon alone would not decide it. Object 2 still has a plan (a
+    throw), found at some horizon."""
+    report = check(two(rules=["G(eta[1,2] -> WX !eta[1,2])"]), joint=False)
     assert report.consistent and not report.undecided
