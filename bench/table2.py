@@ -44,7 +44,7 @@ from dualarm_mpc.verify import verify
 SCENARIO = "table1_vd"
 ROWS = ((2, 5), (2, 6), (2, 10), (3, 5), (3, 6))
 FORMS = ("counting", "subsets")
-# Table II of the paper (design §5): (cost, time in s) per row and rule; CPLEX, 3.3 GHz Xeon.
+# Table II of the paper: (cost, time in s) per row and rule; CPLEX, 3.3 GHz Xeon.
 PAPER = {
     (2, 5): {1: (9.03, 2.52), 2: (8.79, 11.3)},
     (2, 6): {1: (9.70, 2.54), 2: (9.07, 11.7)},

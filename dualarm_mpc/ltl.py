@@ -1,6 +1,6 @@
 """LTLf formulas: the immutable syntax tree, its text parser and printer, and negation normal form.
 
-Formulas are linear temporal logic over the finite trace k = 0..T of one horizon (design.md §2).
+Formulas are linear temporal logic over the finite trace k = 0..T of one horizon (docs/ltl.md).
 Nodes are frozen dataclasses, so they hash and compare structurally and can serve as memo keys.
 The same tree is built from text (:func:`parse`) or from Python (``G(eta(1, 3) >> WX(theta(3)))``),
 and ``parse(str(f)) == f`` for every formula.

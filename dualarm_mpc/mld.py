@@ -1,4 +1,4 @@
-"""The mixed logical dynamical (MLD) model of two hands and N objects (paper §IV-A, design §1).
+"""The mixed logical dynamical (MLD) model of two hands and N objects (paper §IV-A, docs/model.md).
 
 Pure data and math: the model's parameters and derived bounds, the reachability times used for
 pruning (§IV-C.2), and :func:`simulate`, which replays forces and grasps through the model. The
@@ -8,7 +8,7 @@ every plan is checked against.
 Model (Δt = ``dt``; arm i = 0 is arm 1, the right arm; objects j):
 
 * hands, eq. (1) as double integrators: ``p⁺ = p + Δt·v``, ``v⁺ = v + Δt·u``;
-* objects, the picking model of eq. (8) as design §1 fixes it (a rigid grasp and a one-step slide
+* objects, the picking model of eq. (8) as docs/model.md explains it (a rigid grasp and a one-step slide
   after release, so that objects can be thrown):
 
   - held by hand i at k (η_ij(k) = 1): ``v_obj(k) = v_hand_i(k)``;
@@ -128,7 +128,7 @@ class Model:
 
     def object_region(self, start: np.ndarray) -> Box:
         """Where objects can ever be: where they start, or within a hand's reach of the hand range
-        plus one slide step (design §1). Every object big-M derives from this box."""
+        plus one slide step (docs/model.md). Every object big-M derives from this box."""
         reach = self.grasp_half.max(initial=0.0) + self.v_max * self.dt
         lo = np.minimum(self.workspace.lo - reach, np.min(start, axis=0, initial=np.inf))
         hi = np.maximum(self.workspace.hi + reach, np.max(start, axis=0, initial=-np.inf))

@@ -92,7 +92,7 @@ def add_dynamics(prog, x: HorizonVariables, model: Model) -> None:
 
 
 def add_picking(prog, x: HorizonVariables, model: Model, state: State, reach: Reach) -> None:
-    """The picking model, eqs. (8)–(11) as design §1 fixes them, linearized with big-M.
+    """The picking model, eqs. (8)–(11) as docs/model.md explains them, linearized with big-M.
 
     For k ≥ 1, with ``held_j(k) = Σ_i η_ij(k)`` (0 or 1 by eq. 14):
 

@@ -1,5 +1,5 @@
 """Meshcat for a run: the view a person sees (camera on the table, clutter hidden), the live
-server, and the headless recording saved as one self-contained HTML file (design §4)."""
+server, and the headless recording saved as one self-contained HTML file (docs/drake.md)."""
 
 from __future__ import annotations
 

@@ -2,7 +2,7 @@
 
 The model files live in the top-level ``models/`` directory, installed as the package
 ``dualarm_mpc.models`` (see pyproject.toml); ``package://dualarm_mpc/<file>`` URLs resolve there.
-Nothing is downloaded: the robot is our own (design §4).
+Nothing is downloaded: the robot is our own (docs/drake.md).
 """
 
 from __future__ import annotations

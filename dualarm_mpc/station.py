@@ -5,7 +5,7 @@
 gripper ↔ plant, state estimator), leaving the plan input and the measured state for the caller
 (the planner, or a fixed plan in tests).
 
-Physics (design §4, measured): MultibodyPlant with the SAP discrete solver at ``time_step``,
+Physics (docs/drake.md, measured): MultibodyPlant with the SAP discrete solver at ``time_step``,
 hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0 with rigid
 hydroelastic properties; the objects are ``object_size`` boxes with compliant hydroelastic
 properties, resting on it at their scenario positions. Table and objects share the Coulomb

@@ -45,7 +45,7 @@ KNOWN_STATUSES = {"optimal", "feasible", "infeasible", "unbounded", "time_limit"
                   "stuck", "no_horizon", "searching", "over_budget"}
 SOLUTION_STATUSES = {"optimal", "feasible"}
 
-# §V-D bounds and goals (Table I; design §5), hand range extended down to y = -0.3 (README).
+# §V-D bounds and goals (Table I; docs/scenarios.md), hand range extended down to y = -0.3 (README).
 VD = {
     "workspace": [-0.9, 0.9, -0.3, 0.9],
     "max_speed": 0.2,

@@ -83,7 +83,7 @@ def test_solution_replays_through_the_model(case: str, objects: list[int]) -> No
         assert (inside | ~theta[:, j]).all()
     # Cost (17) is the L1 norm of the forces.
     assert res.cost == pytest.approx(np.abs(v[x.force]).sum(), abs=1e-6)
-    # The step ends at rest (design §1) with every object of the step delivered.
+    # The step ends at rest (docs/model.md) with every object of the step delivered.
     np.testing.assert_allclose(replay.hand_vel[-1], 0.0, atol=1e-9)
     np.testing.assert_allclose(replay.object_vel[-1], 0.0, atol=1e-9)
 

@@ -63,7 +63,7 @@ def test_table1_vd_random_objects_and_extended_hand_range() -> None:
     assert s.random_objects is not None and s.n_objects == s.random_objects.count == 10
     xy = np.array([o.position for o in s.objects])
     assert (np.abs(xy) <= 0.25).all()
-    assert s.workspace[2] <= -0.3  # design §1: the hands reach objects below y = 0
+    assert s.workspace[2] <= -0.3  # docs/scenarios.md: the hands reach objects below y = 0
     assert [o.goal for o in s.objects[:4]] == ["red", "green", "blue", "red"]  # round-robin
     assert s.goals["green"] == [-0.175, 0.175, 0.85, 1.15]
 

@@ -1,4 +1,4 @@
-"""Tests of the Drake side: robot model, station, and the low-level systems (design §4)."""
+"""Tests of the Drake side: robot model, station, and the low-level systems (docs/drake.md)."""
 
 from __future__ import annotations
 

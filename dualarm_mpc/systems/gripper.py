@@ -1,7 +1,7 @@
 """Gripper: attaches objects to hands with a stiff in-plane spring-damper, and releases them.
 
 Weld constraints must exist before ``Finalize`` and can only be toggled from outside the Diagram;
-an off-centre weld also snaps the object across at several m/s (design §4). This gripper instead
+an off-centre weld also snaps the object across at several m/s (docs/drake.md, gripper). This gripper instead
 applies equal and opposite ``ExternallyAppliedSpatialForce``s to hand i and object j while the
 pair is attached::
 
@@ -14,7 +14,7 @@ velocity until the table stops it (a throw).
 
 The table (``slide_time_constant`` τ): an object that no hand holds feels the table's viscous
 drag ``F = −m·v/τ`` in the plane, so from speed v it slides ``v·τ`` — with τ = Δt, exactly the
-one-step slide of the planner's object model at *every* speed (design §1). Coulomb friction alone
+one-step slide of the planner's object model at *every* speed (docs/model.md, the one-step slide). Coulomb friction alone
 gives v²/(2μg), which matches v·Δt at one speed only: a throw at 0.35 m/s with μ tuned for
 0.5 m/s fell 10–15 cm short of the plan, beyond the hands' reach (measured).
 
