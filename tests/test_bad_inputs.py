@@ -1,0 +1,100 @@
+"""The command line on a corpus of bad files and flags (``tests/bad_inputs/``), each in its own
+process as a user runs it (issue 7): a nonzero exit (2, bad input), a message naming the field,
+flag or formula position, no traceback, and done within seconds — the subprocess timeout is the
+limit, never a measured time."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+CORPUS = Path(__file__).parent / "bad_inputs"
+# A bad input is refused before any solve: Python, numpy and pydrake load in about a second.
+TIMEOUT_S = 10
+
+
+def run(*args: str, cwd: Path = CORPUS) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=TIMEOUT_S)
+
+
+# (arguments, what stderr must name); files are in CORPUS, base.yaml is a good scenario.
+CASES = [
+    # files
+    (["plan", "not_utf8.yaml"], "not_utf8.yaml: not UTF-8 text (byte 9 is 0xe9)"),
+    (["plan", "bad_yaml.yaml"], "bad_yaml.yaml: not valid YAML"),
+    (["plan", "not_a_mapping.yaml"], "expected a mapping of scenario fields"),
+    (["plan", "missing.yaml"], "scenario: 'missing.yaml' is neither a file nor one of"),
+    (["plan", "unknown_field.yaml"], "goalz: unknown field"),
+    (["plan", "text_for_a_number.yaml"], "max_speed: expected a number, got 'fast'"),
+    (["plan", "unknown_goal.yaml"], "objects[0].goal: 'purple' is not a goal"),
+    (["plan", "no_position.yaml"], "objects[0].position: missing"),
+    (["plan", "objects_and_random_objects.yaml"], "objects: given while random_objects"),
+    (["plan", "negative_event_time.yaml"], "events[0].time: must be >= 0"),
+    (["plan", "negative_seed.yaml"], "seed: must be >= 0"),
+    (["plan", "random_count_huge.yaml"], "random_objects.count: must be 1..1000"),
+    (["plan", "off_table.yaml"], "objects[0].position: a at [0.3, -0.5] lies beyond the hands'"),
+    (["plan", "tiny_dt.yaml"], "dt: with dt = 0.0001 s"),
+    (["plan", "deep_yaml.yaml"], "deep_yaml.yaml: nested too deeply"),
+    # rules
+    (["plan", "unknown_atom.yaml"], "rules[0]: unknown atom foo"),
+    (["simulate", "unknown_atom.yaml"], "rules[0]: unknown atom foo"),
+    (["simulate", "negated_goal_atom.yaml"], "rules[0]: theta[1] appears negated"),
+    (["plan", "too_many_placeholders.yaml"], "rules[0]: 3 distinct object placeholders"),
+    (["plan", "huge_expansion.yaml"], "rules[0]: expands to 1,209,600 instances"),
+    (["plan", "deep_parentheses.yaml"], "rules[0]: column 50: nested deeper than 50 levels"),
+    (["simulate", "deep_negations.yaml"], "rules[0]: column 50: nested deeper than 50 levels"),
+    (["plan", "long_rule_syntax_error.yaml"], "rules[0]: column 1800: expected a formula"),
+    # flags
+    (["plan", "base.yaml", "--out", "no/such/dir/plan.json"], "argument --out: directory"),
+    (["plan", "base.yaml", "--out", "."], "argument --out: . is a directory"),
+    (["plan", "base.yaml", "--plot", "plan.xyz"], "argument --plot: unknown plot format 'xyz'"),
+    (["simulate", "base.yaml", "--html", "no/such/dir/r.html"], "argument --html: directory"),
+    (["simulate", "base.yaml", "--summary", "/proc/s.json"], "argument --summary: cannot write"),
+    (["simulate", "base.yaml", "--duration", "0"], "argument --duration: must be a positive"),
+    (["simulate", "base.yaml", "--duration", "nan"], "argument --duration: must be a positive"),
+    (["simulate", "base.yaml", "--duration", "-1"], "argument --duration: must be a positive"),
+    (["plan", "base.yaml", "--seed", "-1"], "argument --seed: must be >= 0"),
+    (["plan", "base.yaml", "--mo", "0"], "argument --mo: must be >= 1"),
+    (["plan", "base.yaml", "--rule", "3"], "argument --rule: invalid choice"),
+    (["plan", "base.yaml", "--time-limit", "-5"], "argument --time-limit: must be a positive"),
+    (["plan", "base.yaml", "--set", "max_speed: [1"], "--set 'max_speed: [1': not valid YAML"),
+    (["plan", "base.yaml", "--set", "solver.timelimit: 3"], "solver.timelimit: unknown field"),
+    (["plan", "base.yaml", "--set", "objects[9].goal: red"],
+     "objects[9]: no such element (objects has 2)"),
+    (["plan", "base.yaml", "--set", "solver.max_horizon: 100000"], "solver.max_horizon: at most"),
+    (["check", "base.yaml", "--set", "rules: ['G eta[3,1]']"], "rules[0]: eta[3,1]: the hand"),
+]
+
+
+@pytest.mark.parametrize(("args", "named"), CASES, ids=[" ".join(a) for a, _ in CASES])
+def test_bad_input_is_refused_naming_it(args: list[str], named: str) -> None:
+    done = run(*args)
+    assert done.returncode == 2, (done.returncode, done.stderr)
+    assert named in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr + done.stdout
+
+
+def test_a_syntax_error_in_a_long_rule_shows_a_window() -> None:
+    """The rule is 3,300 characters long: the message shows a window of it, once."""
+    done = run("plan", "long_rule_syntax_error.yaml")
+    assert len(done.stderr) < 400, done.stderr
+
+
+def test_nothing_to_do_exits_zero() -> None:
+    done = run("plan", "nothing_to_do.yaml", "--mo", "1")
+    assert done.returncode == 0, done.stderr
+    assert "nothing to do: every object already rests in its goal" in done.stdout
+    assert "Traceback" not in done.stderr + done.stdout
+
+
+def test_a_plan_prints_no_solver_banner(tmp_path) -> None:
+    """HiGHS printed its banner into the step table on the first solve."""
+    done = subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", "plan",
+                           str(CORPUS / "base.yaml")], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert "HiGHS" not in done.stdout + done.stderr and "THIRD_PARTY" not in done.stdout
