@@ -94,6 +94,7 @@ def save_recording(meshcat: Meshcat, path: str | Path | None) -> None:
     as standalone HTML with its controls open: it plays once from the start as the page loads."""
     meshcat.StopRecording()
     meshcat.PublishRecording()
+    meshcat.Flush()  # a live browser has the replay before the server can go
     if path is None:
         return
     html = meshcat.StaticHtml()
