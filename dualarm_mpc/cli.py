@@ -15,7 +15,13 @@ import threading
 from pathlib import Path
 
 from dualarm_mpc.ltl import LTLSyntaxError
-from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides, parse_override
+from dualarm_mpc.scenario import (
+    SOLVER_BACKENDS,
+    ScenarioError,
+    load_scenario,
+    merge_overrides,
+    parse_override,
+)
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -27,7 +33,8 @@ def _overrides(args: argparse.Namespace) -> dict:
         if value is not None:
             out[field] = value
     solver = {key: value for key, value in (("time_limit_s", getattr(args, "time_limit", None)),
-                                            ("search", getattr(args, "search", None)))
+                                            ("search", getattr(args, "search", None)),
+                                            ("backend", getattr(args, "solver", None)))
               if value is not None}
     if solver:
         out["solver"] = solver
@@ -117,6 +124,8 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--time-limit", type=_seconds, help="seconds per horizon of a step")
     p.add_argument("--search", choices=("skeleton", "monolithic"),
                    help="solve each horizon by the skeleton search (default) or as one MILP")
+    p.add_argument("--solver", choices=SOLVER_BACKENDS,
+                   help="the MILP solver (default highs; the others where installed)")
     p.add_argument("--set", action="append", metavar="YAML",
                    help="override any scenario field, e.g. --set 'max_speed: 0.3' or "
                    "--set 'solver.time_limit_s: 5' (repeatable)")
@@ -321,10 +330,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     from dualarm_mpc.encoding import EncodingError  # here: it loads pydrake
+    from dualarm_mpc.solver import SolverUnavailable
 
     try:
         return args.run(args)
-    except (ScenarioError, LTLSyntaxError, EncodingError) as err:  # the message names the cause
+    except (ScenarioError, LTLSyntaxError, EncodingError, SolverUnavailable) as err:  # one line
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # outside a solve (or a second Ctrl-C): nothing left to keep

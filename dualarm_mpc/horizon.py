@@ -29,7 +29,6 @@ from dualarm_mpc.solver import (
     StandardForm,
     Start,
     Status,
-    solve,
     solve_standard_form,
     standard_form,
 )
@@ -116,7 +115,7 @@ class HorizonProgram:
 
     @functools.cached_property
     def form(self) -> StandardForm:
-        """The model in standard form (read once, for HiGHS; Drake's solvers take ``prog``)."""
+        """The model in standard form (read once; every backend solves standard forms)."""
         return standard_form(self.prog)
 
     def encode(self, prog: MathematicalProgram, spec: Specification) -> None:
@@ -131,7 +130,7 @@ class HorizonProgram:
         enc.emit("LTL specification")
 
     def program(self, spec: Specification) -> MathematicalProgram:
-        """The whole MILP of ``spec`` as one MathematicalProgram (for Drake's own solvers)."""
+        """The whole MILP of ``spec`` as one MathematicalProgram."""
         prog = self.prog.Clone()
         self.encode(prog, spec)
         return prog
@@ -172,16 +171,9 @@ class HorizonProgram:
         the model's, not the solver's rounding). The cost is that of the costed hands."""
         x = self.x
         t0 = time.perf_counter()
-        if options.backend == "highs":
-            f = self.standard_form(spec, **narrow)
-            build = time.perf_counter() - t0
-            result = solve_standard_form(f, options, start(x) if start else None)
-        elif narrow:
-            raise ValueError("the skeleton search needs the HiGHS backend")
-        else:
-            prog = self.program(spec)
-            build = time.perf_counter() - t0
-            result = solve(prog, options, start(x) if start else None)
+        f = self.standard_form(spec, **narrow)
+        build = time.perf_counter() - t0
+        result = solve_standard_form(f, options, start(x) if start else None)
         binaries = int(x.binaries.size)
         if not result.status.has_solution:
             return StepResult(result.status, self.horizon, None, np.inf, result.wall_time_s,

@@ -28,6 +28,7 @@ from dualarm_mpc.ltl import LTLSyntaxError, parse
 BUILTIN = ("table1_vc", "table1_vd")
 MAX_RANDOM_OBJECTS = 1000  # random_objects.count; more would only fill memory
 MAX_HORIZON = 1000  # solver.max_horizon; the MILP of a longer horizon is far out of reach
+SOLVER_BACKENDS = ("highs", "scip", "gurobi", "cplex")  # solver.BACKENDS, without importing it
 
 
 class ScenarioError(ValueError):
@@ -61,7 +62,7 @@ class RandomObjects:
 class SolverOptions:
     """Options of one MILP solve (design §3)."""
 
-    backend: str = "highs"  # "highs", or "gurobi" / "mosek" through Drake when licensed
+    backend: str = "highs"  # or "scip", "gurobi", "cplex" where installed (solver.py)
     time_limit_s: float = 30.0
     mip_rel_gap: float = 1e-4
     threads: int = 1
@@ -387,8 +388,6 @@ def _box(value: list[float], path: str) -> None:
         raise ScenarioError(f"{path}: expected [xmin, xmax, ymin, ymax], got {value!r}")
     if not (value[0] < value[1] and value[2] < value[3]):
         raise ScenarioError(f"{path}: empty box {value!r} (need xmin < xmax and ymin < ymax)")
-    if not math.isfinite(value[1] - value[0] + value[3] - value[2]):
-        raise ScenarioError(f"{path}: a box too large to measure {value!r}")
 
 
 def _point(value: list[float], path: str) -> None:
@@ -400,10 +399,10 @@ def _check_random_objects(r: RandomObjects) -> None:
     _box(r.region, "random_objects.region")
     if not 1 <= r.count <= MAX_RANDOM_OBJECTS:
         raise ScenarioError(f"random_objects.count: must be 1..{MAX_RANDOM_OBJECTS}, got {r.count}")
-    if r.min_separation > 0:  # how many points that far apart (per axis) fit in the region
-        fit = [(hi - lo) / r.min_separation for lo, hi in (r.region[:2], r.region[2:])]
-        room = math.prod(math.floor(n) + 1 for n in fit) if all(map(math.isfinite, fit)) \
-            else math.inf
+    if r.min_separation > 0:
+        xmin, xmax, ymin, ymax = r.region
+        room = (math.floor((xmax - xmin) / r.min_separation) + 1) * \
+            (math.floor((ymax - ymin) / r.min_separation) + 1)
         if r.count > room:
             raise ScenarioError(f"random_objects: {r.count} objects {r.min_separation} m apart do "
                                 f"not fit in {r.region} (at most {room})")
@@ -481,8 +480,9 @@ def validate(s: Scenario) -> None:
         raise ScenarioError(f"task_form: must be 'counting' or 'subsets', got {s.task_form!r}")
     if not 1 <= s.m_o <= s.n_o:
         raise ScenarioError(f"m_o: need 1 <= m_o <= n_o, got m_o={s.m_o}, n_o={s.n_o}")
-    if s.solver.backend not in ("highs", "gurobi", "mosek"):
-        raise ScenarioError(f"solver.backend: unknown backend {s.solver.backend!r}")
+    if s.solver.backend not in SOLVER_BACKENDS:
+        raise ScenarioError(f"solver.backend: unknown solver {s.solver.backend!r} (one of "
+                            f"{', '.join(SOLVER_BACKENDS)})")
     if s.solver.search not in ("skeleton", "monolithic"):
         raise ScenarioError(f"solver.search: expected 'skeleton' or 'monolithic', got "
                             f"{s.solver.search!r}")
@@ -524,14 +524,16 @@ def _check_reach(s: Scenario) -> None:
     """Objects no hand can move: off the table (beyond the hand range widened by the grasp box,
     eq. 11, and not in their goal), or farther from their goal than an object can travel in one
     horizon (a held or sliding object moves at most max_speed·dt per step and axis)."""
-    xmin, xmax, ymin, ymax = s.workspace
+    lo = np.array(s.workspace[::2])
+    hi = np.array(s.workspace[1::2])
     step = s.max_speed * s.dt
     for j, o in enumerate(s.objects):
-        (x, y), half = o.position, o.grasp_half_size
-        gx0, gx1, gy0, gy1 = s.goals[o.goal]
-        away = max(gx0 - x, x - gx1, gy0 - y, y - gy1, 0.0)  # per axis, as the speed bound
-        reach = xmin - half <= x <= xmax + half and ymin - half <= y <= ymax + half
-        if away > 0 and not reach:
+        p = np.array(o.position)
+        goal = s.goals[o.goal]
+        away = float(np.maximum(np.maximum(np.array(goal[::2]) - p, p - np.array(goal[1::2])),
+                                0.0).max())
+        half = o.grasp_half_size
+        if away > 0 and ((p < lo - half) | (p > hi + half)).any():
             drawn = " (drawn from random_objects.region)" if s.random_objects is not None else ""
             raise ScenarioError(
                 f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the hands' "

@@ -1,33 +1,62 @@
-"""The one solver boundary: a MathematicalProgram MILP solved by HiGHS (or Drake's licensed ones).
+"""The one solver boundary: a MathematicalProgram MILP in standard form, solved by a backend.
 
-Drake's pip wheel has no MILP solver, so :func:`solve` reads the program's linear costs, linear
-constraints, bounding boxes and binary variables in bulk as sparse matrices and hands them to
-``highspy``. Where a licensed Gurobi or MOSEK is available and asked for, Drake's own solver runs
-instead. This module knows nothing of LTL or robots.
+Drake's pip wheel has no MILP solver, so :func:`standard_form` reads a program's linear costs,
+linear constraints, bounding boxes and binary variables in bulk as sparse matrices, and
+:func:`solve_standard_form` hands them to the backend that :class:`SolveOptions` names: HiGHS
+(the default), SCIP, Gurobi or CPLEX, each an adapter in ``backends.py`` that is imported only
+when used. Every backend gets the same options and returns the same :class:`SolveResult`:
+status, bound and gap are made here from what each solver said, one way for all. This module
+knows nothing of LTL or robots.
 """
 
 from __future__ import annotations
 
 import enum
-import functools
-import logging
+import importlib.util
 import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from pydrake.solvers import LinearConstraint, LinearCost, MathematicalProgram, SolverOptions
+from pydrake.solvers import LinearConstraint, LinearCost, MathematicalProgram
 from pydrake.symbolic import Variable
 
-log = logging.getLogger(__name__)
+# Backend name → (the Python module it needs, the pip extra that installs it).
+BACKENDS = {"highs": ("highspy", None), "scip": ("pyscipopt", "scip"),
+            "gurobi": ("gurobipy", "gurobi"), "cplex": ("cplex", "cplex")}
+
+
+class SolverUnavailable(RuntimeError):
+    """A backend that cannot solve here: unknown, not installed, no licence, or a model over
+    its licence's size limit. The message is one line that says which and what to do."""
+
+
+def installed_backends() -> list[str]:
+    """The backends whose Python package is installed here (licences are not checked)."""
+    return [name for name, (module, _) in BACKENDS.items()
+            if importlib.util.find_spec(module) is not None]
+
+
+def require_backend(name: str) -> None:
+    """Raise :class:`SolverUnavailable` unless backend ``name`` is known and installed."""
+    if name not in BACKENDS:
+        raise SolverUnavailable(f"unknown solver {name!r} (one of {', '.join(BACKENDS)})")
+    module, extra = BACKENDS[name]
+    if importlib.util.find_spec(module) is None:
+        raise SolverUnavailable(f"solver {name!r} is not installed here (pip install "
+                                f"'dualarm_mpc[{extra}]'); installed: "
+                                f"{', '.join(installed_backends())}")
 
 
 class Status(enum.Enum):
     OPTIMAL = "optimal"
     FEASIBLE = "feasible"  # a solution with a gap above the asked one (stopped early)
     INFEASIBLE = "infeasible"
-    UNBOUNDED = "unbounded"  # or HiGHS could not tell unbounded from infeasible
+    UNBOUNDED = "unbounded"  # or infeasible, where an unbounded column leaves it open
     TIME_LIMIT = "time_limit"  # stopped with no solution
     ERROR = "error"
 
@@ -38,53 +67,63 @@ class Status(enum.Enum):
 
 @dataclass(frozen=True)
 class SolveOptions:
+    """What every backend gets: a time limit, the relative gap |objective − bound| / |objective|
+    at which a solution counts as optimal (1 or more: the first solution), threads."""
+
     time_limit_s: float = 30.0
     mip_rel_gap: float = 1e-4
     threads: int = 1
-    backend: str = "highs"  # or "gurobi" / "mosek" (Drake, licensed)
+    backend: str = "highs"  # a key of BACKENDS
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)
 
 
 class Interrupt:
-    """A stop request for running solves, from any thread: each HiGHS run under it is
-    cancelled through HiGHS's interrupt callback and ends with status "time_limit" (or
-    "feasible" with its incumbent)."""
+    """A stop request for running solves, from any thread: each solve under it stops as soon
+    as its solver can and ends with status "time_limit" (or "feasible" with its incumbent).
+    HiGHS and CPLEX are cancelled from the thread that sets it (:meth:`watch`); SCIP and Gurobi
+    poll :meth:`is_set` from their own callbacks."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._running: set = set()
+        self._running: dict[int, Callable[[], None]] = {}
         self._set = False
 
     def set(self) -> None:
         with self._lock:
             self._set = True
-            for h in self._running:
-                h.cancelSolve()
+            for cancel in self._running.values():
+                cancel()
 
     def is_set(self) -> bool:
         return self._set
 
-    def attach(self, h) -> None:
+    @contextmanager
+    def watch(self, cancel: Callable[[], None]) -> Iterator[None]:
+        """Call ``cancel`` (which stops a running solve) when set, while in the block; at once
+        if set already."""
+        key = id(cancel)
         with self._lock:
-            self._running.add(h)
+            self._running[key] = cancel
             if self._set:
-                h.cancelSolve()
-
-    def detach(self, h) -> None:
-        with self._lock:
-            self._running.discard(h)
+                cancel()
+        try:
+            yield
+        finally:
+            with self._lock:
+                del self._running[key]
 
 
 @dataclass(frozen=True)
 class SolveResult:
     status: Status
     objective: float  # inf when there is no solution
-    bound: float  # the proven lower bound
-    gap: float  # relative gap; 0 when optimal, inf when no solution
+    bound: float  # the proven lower bound: inf when infeasible, -inf when unknown
+    gap: float  # (objective − bound) / |objective|; inf when there is no solution
     wall_time_s: float
-    x: np.ndarray | None  # values of prog.decision_variables(), or None
-    message: str = ""
+    x: np.ndarray | None  # values of the columns, or None
+    message: str = ""  # the solver's own status
+    backend: str = "highs"
 
 
 @dataclass(frozen=True)
@@ -133,7 +172,7 @@ def standard_form(prog: MathematicalProgram) -> StandardForm:
         | {type(b.evaluator()).__name__ for b in prog.GetAllConstraints()
            if not isinstance(b.evaluator(), LinearConstraint)})
     if unsupported:
-        raise ValueError(f"the HiGHS adapter accepts linear costs and linear constraints only, "
+        raise ValueError(f"the solver boundary accepts linear costs and linear constraints only, "
                          f"not {', '.join(unsupported)}")
     c = np.zeros(n)
     c0 = 0.0
@@ -165,184 +204,100 @@ def standard_form(prog: MathematicalProgram) -> StandardForm:
                         np.concatenate(ubs) if ubs else np.zeros(0), col_lb, col_ub, integer)
 
 
-# A MIP start: values of all decision variables, or (indices, values) of some of them, which
-# HiGHS completes by solving for the others.
+# A MIP start: values of all columns, or (indices, values) of some of them, which the solver
+# completes by solving for the others.
 Start = np.ndarray | tuple[np.ndarray, np.ndarray]
+
+
+@dataclass(frozen=True)
+class MipStart:
+    """A MIP start as an adapter gets it: values (within bounds) of the columns ``index``, all
+    of them when ``complete``."""
+
+    index: np.ndarray
+    value: np.ndarray
+    complete: bool
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What an adapter (``backends.py``) reports, in our words. ``status`` is TIME_LIMIT
+    whenever the solver stopped early (time limit, interrupt, another limit), with or without
+    a solution; UNBOUNDED covers "infeasible or unbounded". ``bound`` is the solver's proven
+    lower bound (-inf if it has none)."""
+
+    status: Status
+    x: np.ndarray | None
+    objective: float
+    bound: float
+    message: str
 
 
 def solve(prog: MathematicalProgram, options: SolveOptions = SolveOptions(),
           start: Start | None = None) -> SolveResult:
     """Solve the MILP ``prog`` from an optional MIP ``start``."""
-    if options.backend != "highs":
-        return _solve_with_drake(prog, options, start)
     return solve_standard_form(standard_form(prog), options, start)
-
-
-@functools.cache
-def _quiet_highs() -> type:
-    """highspy's ``Highs`` that never prints: its constructor registers callbacks, the first
-    HiGHS call that logs, so the banner reached stdout (once per process) before any option
-    could be set."""
-    import highspy  # local: the adapter is the only place that knows the solver
-
-    class QuietHighs(highspy.Highs):
-        def enableCallbacks(self) -> None:
-            self.setOptionValue("output_flag", False)
-            super().enableCallbacks()
-
-    return QuietHighs
 
 
 def solve_standard_form(f: StandardForm, options: SolveOptions,
                         start: Start | None = None) -> SolveResult:
-    import highspy
+    """Solve ``f`` with ``options.backend``; raises :class:`SolverUnavailable` when that backend
+    cannot (unknown, not installed, unlicensed, the model over its licence's size limit)."""
+    from dualarm_mpc import backends
 
+    require_backend(options.backend)
     t0 = time.perf_counter()
-    h = _quiet_highs()()
-    h.setOptionValue("time_limit", float(options.time_limit_s))
-    h.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
-    h.setOptionValue("threads", int(options.threads))
-    lp = highspy.HighsLp()
-    n = len(f.c)
-    lp.num_col_ = n
-    lp.num_row_ = f.A.shape[0]
-    lp.col_cost_ = f.c
-    lp.offset_ = f.c0
-    lp.col_lower_ = f.col_lb
-    lp.col_upper_ = f.col_ub
-    lp.row_lower_ = f.row_lb
-    lp.row_upper_ = f.row_ub
-    A = f.A.tocsc()
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_ = A.indptr
-    lp.a_matrix_.index_ = A.indices
-    lp.a_matrix_.value_ = A.data
-    lp.a_matrix_.num_col_ = n
-    lp.a_matrix_.num_row_ = f.A.shape[0]
-    lp.integrality_ = [
-        highspy.HighsVarType.kInteger if b else highspy.HighsVarType.kContinuous for b in f.integer
-    ]
-    h.passModel(lp)
+    out = getattr(backends, options.backend)(f, options, _start(f, start))
+    return _result(f, options, out, time.perf_counter() - t0)
+
+
+def _start(f: StandardForm, start: Start | None) -> MipStart | None:
+    """``start`` as columns and values within their bounds."""
+    if start is None:
+        return None
     if isinstance(start, tuple):
-        index, value = (np.asarray(a) for a in start)
-        value = np.clip(value, f.col_lb[index], f.col_ub[index])
-        h.setSolution(len(index), index.astype(np.int32), value.astype(float))
-    elif start is not None:
-        sol = highspy.HighsSolution()
-        sol.col_value = list(np.clip(start, f.col_lb, f.col_ub))
-        sol.value_valid = True
-        h.setSolution(sol)
-    stop = options.interrupt
-    if stop is not None:
-        h.HandleUserInterrupt = True
-        stop.attach(h)
-    try:
-        h.run()
-    finally:
-        if stop is not None:
-            stop.detach(h)
-    wall = time.perf_counter() - t0
-    status = h.getModelStatus()
-    info = h.getInfo()
-    M = highspy.HighsModelStatus
-    has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
-    mip = bool(f.integer.any())
-    if status == M.kOptimal:
-        s = Status.OPTIMAL
-    elif status == M.kInfeasible:
-        s = Status.INFEASIBLE
-    elif status in (M.kUnbounded, M.kUnboundedOrInfeasible):
-        s = Status.UNBOUNDED  # HiGHS may hold a feasible point here: it is no solution
-    elif status in (M.kTimeLimit, M.kIterationLimit, M.kSolutionLimit, M.kInterrupt):
-        s = Status.FEASIBLE if has_solution else Status.TIME_LIMIT
+        index = np.asarray(start[0], int)
+        value = np.asarray(start[1], float)
     else:
-        s = Status.ERROR
-    if s.has_solution:
-        x = np.asarray(h.getSolution().col_value)
-        obj = float(info.objective_function_value)
-    else:
-        x, obj = None, np.inf
-    # HiGHS's mip_dual_bound is meaningless for a pure LP: only its optimum is a proven bound.
-    if s is Status.UNBOUNDED:
-        bound = -np.inf
-    elif mip:
-        bound = float(info.mip_dual_bound)
-    else:
-        bound = {Status.OPTIMAL: obj, Status.INFEASIBLE: np.inf}.get(s, -np.inf)
-    gap = 0.0 if s is Status.OPTIMAL else float(info.mip_gap) if s.has_solution and mip else np.inf
-    return SolveResult(s, obj, bound, gap, wall, x, h.modelStatusToString(status))
+        index, value = np.arange(len(f.c)), np.asarray(start, float)
+    value = np.clip(value, f.col_lb[index], f.col_ub[index])
+    return MipStart(index, value, complete=len(index) == len(f.c))
 
 
-def _solve_with_drake(prog, options: SolveOptions, start) -> SolveResult:
-    """Drake's own Gurobi or MOSEK, where licensed (``backend`` = "gurobi" / "mosek")."""
-    from pydrake.solvers import GurobiSolver, MosekSolver
+def _result(f: StandardForm, options: SolveOptions, out: Outcome, wall: float) -> SolveResult:
+    """One backend's outcome as a :class:`SolveResult`, the same way for every backend:
 
-    solver = {"gurobi": GurobiSolver, "mosek": MosekSolver}[options.backend]()
-    if isinstance(start, tuple):
-        dense = np.full(prog.num_vars(), np.nan)
-        dense[start[0]] = start[1]
-        start = dense
-    if not (solver.available() and solver.enabled()):
-        raise RuntimeError(
-            f"solver backend {options.backend!r} is not available or not licensed here; "
-            "use backend 'highs'"
-        )
-    opts = SolverOptions()
-    names = {"gurobi": ("TimeLimit", "MIPGap", "Threads"),
-             "mosek": ("MSK_DPAR_OPTIMIZER_MAX_TIME", "MSK_DPAR_MIO_TOL_REL_GAP",
-                       "MSK_IPAR_NUM_THREADS")}[options.backend]
-    for name, value in zip(names, (float(options.time_limit_s), float(options.mip_rel_gap),
-                                   int(options.threads)), strict=True):
-        opts.SetOption(solver.solver_id(), name, value)
-    t0 = time.perf_counter()
-    result = solver.Solve(prog, start, opts)
-    return drake_result(options, result, prog.decision_variables(), time.perf_counter() - t0)
-
-
-# Gurobi's optimization status codes. Drake passes a solution back for OPTIMAL and SUBOPTIMAL
-# only: stopped at a limit, Gurobi's incumbent is lost, so the result is TIME_LIMIT.
-_GUROBI = {2: Status.OPTIMAL, 3: Status.INFEASIBLE, 4: Status.UNBOUNDED, 5: Status.UNBOUNDED,
-           7: Status.TIME_LIMIT, 8: Status.TIME_LIMIT, 9: Status.TIME_LIMIT,
-           10: Status.TIME_LIMIT, 11: Status.TIME_LIMIT, 13: Status.FEASIBLE,
-           16: Status.TIME_LIMIT}
-# MOSEK's solution status codes (MSKsolstae). For a MIP, PRIM_FEAS is an incumbent where the
-# search stopped early (Drake calls it "solution found"); UNKNOWN is either a limit without an
-# incumbent or an infeasible MIP, which Drake does not tell apart (it keeps MOSEK's problem
-# status to itself): see drake_result.
-_MOSEK = {1: Status.OPTIMAL, 9: Status.OPTIMAL, 2: Status.FEASIBLE, 4: Status.FEASIBLE,
-          5: Status.INFEASIBLE, 6: Status.UNBOUNDED}
-
-
-def drake_result(options: SolveOptions, result, variables, wall: float) -> SolveResult:
-    """A Drake MathematicalProgramResult of Gurobi or MOSEK as a :class:`SolveResult`, with the
-    solver's own status: optimal (within ``mip_rel_gap``), stopped with an incumbent and its
-    gap, stopped at the time limit, infeasible, unbounded, or an error."""
-    details = result.get_solver_details()
-    if options.backend == "gurobi":
-        code = details.optimization_status
-        status = _GUROBI.get(code, Status.ERROR) if not details.error_code else Status.ERROR
-        message = f"Gurobi status {code}, error code {details.error_code}"
-        bound = float(details.objective_bound)
-    else:
-        code = details.solution_status
-        status = _MOSEK.get(code, Status.ERROR) if details.rescode == 0 else Status.ERROR
-        if code == 0 and details.rescode == 0:
-            # Stopped by the time limit, or an infeasible MIP that we cannot prove so.
-            status = (Status.TIME_LIMIT if wall >= 0.99 * options.time_limit_s else Status.ERROR)
-        message = f"MOSEK solution status {code}, response code {details.rescode}"
-        bound = np.nan  # MOSEK's MIP bound does not come through Drake
-    x = np.asarray(result.GetSolution(variables), float) if status.has_solution else None
-    if x is not None and not np.isfinite(x).all():
-        status, x = Status.ERROR, None
-        message += ", no finite solution"
-    objective = float(result.get_optimal_cost()) if status.has_solution else np.inf
+    * "infeasible or unbounded" is infeasible when every column is bounded (then no objective
+      is unbounded), else left as UNBOUNDED;
+    * stopped early with a solution is FEASIBLE, or OPTIMAL when its gap is within the one
+      asked (as each solver itself decides when it does not stop early; any solution when
+      that is 1 or more); without one, TIME_LIMIT;
+    * gap = (objective − bound) / |objective| with the bound no higher than the objective."""
+    status, message = out.status, out.message
+    if status is Status.UNBOUNDED and np.isfinite(f.col_lb).all() and \
+            np.isfinite(f.col_ub).all():
+        status, message = Status.INFEASIBLE, message + " (every column bounded: infeasible)"
+    if status in (Status.OPTIMAL, Status.TIME_LIMIT) and out.x is not None:
+        if not np.isfinite(out.x).all():
+            return SolveResult(Status.ERROR, np.inf, -np.inf, np.inf, wall, None,
+                               message + ", no finite solution", options.backend)
+        objective = out.objective
+        bound = min(out.bound, objective) if not np.isnan(out.bound) else -np.inf
+        gap = (objective - bound) / max(abs(objective), 1e-10) if np.isfinite(bound) else np.inf
+        if status is Status.TIME_LIMIT:  # a gap of 1 or more asks for any solution
+            within = gap <= options.mip_rel_gap or options.mip_rel_gap >= 1
+            status = Status.OPTIMAL if within else Status.FEASIBLE
+        return SolveResult(status, objective, bound, gap, wall, out.x, message, options.backend)
     if status is Status.OPTIMAL:
-        bound, gap = (objective if np.isnan(bound) else bound), 0.0
-    elif status is Status.FEASIBLE:
-        gap = (abs(objective - bound) / max(abs(objective), 1e-10) if np.isfinite(bound)
-               else np.inf)
-        bound = bound if np.isfinite(bound) else -np.inf
-    else:
-        bound = {Status.INFEASIBLE: np.inf}.get(status, -np.inf)
-        gap = np.inf
-    return SolveResult(status, objective, bound, gap, wall, x, message)
+        status, message = Status.ERROR, message + ", no solution"
+    bound = {Status.INFEASIBLE: np.inf,
+             Status.TIME_LIMIT: -np.inf if np.isnan(out.bound) else out.bound}.get(status, -np.inf)
+    return SolveResult(status, np.inf, bound, np.inf, wall, None, message, options.backend)
+
+
+def write_mps(f: StandardForm, path: str | Path) -> None:
+    """Write ``f`` as an MPS file (through HiGHS), for any other solver to read."""
+    from dualarm_mpc.backends import highs_model
+
+    h = highs_model(f)
+    h.writeModel(str(path))

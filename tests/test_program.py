@@ -285,13 +285,3 @@ def test_unbounded_program_is_not_reported_as_a_solution() -> None:
     prog.AddLinearCost(np.array([-1.0]), 0.0, x)
     r = solve(prog)
     assert not r.status.has_solution, r
-
-
-def test_drake_backend_unavailable_is_a_clear_error() -> None:
-    prog, _ = knapsack()
-    from pydrake.solvers import GurobiSolver
-
-    if GurobiSolver().available() and GurobiSolver().enabled():
-        pytest.skip("Gurobi is licensed here")
-    with pytest.raises(RuntimeError, match="gurobi"):
-        solve(prog, SolveOptions(backend="gurobi"))

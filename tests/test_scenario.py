@@ -230,7 +230,7 @@ def test_empty_or_malformed_box(overrides, prefix: str) -> None:
         ({"m_o": 0}, "m_o: need 1 <= m_o <= n_o"),
         ({"m_o": 7, "n_o": 6}, "m_o: need 1 <= m_o <= n_o"),
         ({"task_form": "both"}, "task_form: must be"),
-        ({"solver": {"backend": "cplex"}}, "solver.backend: unknown backend"),
+        ({"solver": {"backend": "glpk"}}, "solver.backend: unknown solver 'glpk' (one of highs"),
         ({"solver": {"time_limit_s": 0}}, "solver.time_limit_s: must be positive"),
         ({"max_force": 0}, "max_force: must be positive"),
         ({"hand_gap": -0.1}, "hand_gap: must be >= 0"),
