@@ -388,6 +388,8 @@ def _box(value: list[float], path: str) -> None:
         raise ScenarioError(f"{path}: expected [xmin, xmax, ymin, ymax], got {value!r}")
     if not (value[0] < value[1] and value[2] < value[3]):
         raise ScenarioError(f"{path}: empty box {value!r} (need xmin < xmax and ymin < ymax)")
+    if not math.isfinite(value[1] - value[0] + value[3] - value[2]):
+        raise ScenarioError(f"{path}: a box too large to measure {value!r}")
 
 
 def _point(value: list[float], path: str) -> None:
@@ -399,10 +401,10 @@ def _check_random_objects(r: RandomObjects) -> None:
     _box(r.region, "random_objects.region")
     if not 1 <= r.count <= MAX_RANDOM_OBJECTS:
         raise ScenarioError(f"random_objects.count: must be 1..{MAX_RANDOM_OBJECTS}, got {r.count}")
-    if r.min_separation > 0:
-        xmin, xmax, ymin, ymax = r.region
-        room = (math.floor((xmax - xmin) / r.min_separation) + 1) * \
-            (math.floor((ymax - ymin) / r.min_separation) + 1)
+    if r.min_separation > 0:  # how many points that far apart (per axis) fit in the region
+        fit = [(hi - lo) / r.min_separation for lo, hi in (r.region[:2], r.region[2:])]
+        room = math.prod(math.floor(n) + 1 for n in fit) if all(map(math.isfinite, fit)) \
+            else math.inf
         if r.count > room:
             raise ScenarioError(f"random_objects: {r.count} objects {r.min_separation} m apart do "
                                 f"not fit in {r.region} (at most {room})")
@@ -524,16 +526,14 @@ def _check_reach(s: Scenario) -> None:
     """Objects no hand can move: off the table (beyond the hand range widened by the grasp box,
     eq. 11, and not in their goal), or farther from their goal than an object can travel in one
     horizon (a held or sliding object moves at most max_speed·dt per step and axis)."""
-    lo = np.array(s.workspace[::2])
-    hi = np.array(s.workspace[1::2])
+    xmin, xmax, ymin, ymax = s.workspace
     step = s.max_speed * s.dt
     for j, o in enumerate(s.objects):
-        p = np.array(o.position)
-        goal = s.goals[o.goal]
-        away = float(np.maximum(np.maximum(np.array(goal[::2]) - p, p - np.array(goal[1::2])),
-                                0.0).max())
-        half = o.grasp_half_size
-        if away > 0 and ((p < lo - half) | (p > hi + half)).any():
+        (x, y), half = o.position, o.grasp_half_size
+        gx0, gx1, gy0, gy1 = s.goals[o.goal]
+        away = max(gx0 - x, x - gx1, gy0 - y, y - gy1, 0.0)  # per axis, as the speed bound
+        reach = xmin - half <= x <= xmax + half and ymin - half <= y <= ymax + half
+        if away > 0 and not reach:
             drawn = " (drawn from random_objects.region)" if s.random_objects is not None else ""
             raise ScenarioError(
                 f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the hands' "
