@@ -10,6 +10,7 @@ import argparse
 import dataclasses
 import logging
 import math
+import os
 import sys
 import threading
 from pathlib import Path
@@ -85,6 +86,20 @@ def _output(path: str) -> str:
         raise argparse.ArgumentTypeError(f"cannot write {path}: {err.strerror}") from None
     if not existed:
         p.unlink()
+    return path
+
+
+def _directory(path: str) -> str:
+    """A directory the run writes files into, checked before the run starts: made if missing
+    (in a directory that exists)."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise argparse.ArgumentTypeError(f"{path} is not a directory")
+    where = p if p.exists() else p.parent
+    if not where.is_dir():
+        raise argparse.ArgumentTypeError(f"directory {where} does not exist")
+    if not os.access(where, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"cannot write in {where}")
     return path
 
 
@@ -207,7 +222,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
               f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}"
               + (f"  (m_o = {len(seg.objects)}: the objects left)" if fewer else ""), flush=True)
 
-    def tried(res) -> None:  # a horizon without a plan: say so, a search is never silent
+    export = None
+    if args.export:
+        from dualarm_mpc.export import MpsExport
+
+        export = MpsExport(scenario, args.export)
+
+    def tried(t) -> None:  # a horizon without a plan: say so, a search is never silent
+        if export:
+            export(t)
+        res = t.result
         if not res.status.has_solution:
             print(f"{'':>4}  {'':<22} {res.horizon:>3} {res.binaries:>8}  "
                   f"{res.status.value:<10} {res.solve_time_s:>9.2f}", flush=True)
@@ -221,6 +245,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if err.partial is not None and err.partial.segments:
             _save_plan(err.partial, args, scenario)
         return 3
+    finally:
+        if export and export.entries:
+            print(f"wrote {len(export.entries)} MILP(s) as MPS, listed in "
+                  f"{Path(args.export) / 'index.json'}")
     check = verify(scenario, result)
     result = dataclasses.replace(result, verified=check.ok)
     resting = sum(d is not None for d in result.delivered_step)
@@ -315,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     _scenario_arguments(p)
     p.add_argument("--out", type=_output, help="write the plan JSON here")
     p.add_argument("--plot", type=_plot, help="write a PNG (or PDF, SVG, ...) of the plan here")
+    p.add_argument("--export", type=_directory, metavar="DIR",
+                   help="write the monolithic MILP of each horizon tried as an MPS file here, "
+                   "with index.json")
     p.set_defaults(run=cmd_plan)
     p = sub.add_parser("simulate", help="run the receding-horizon planner on the robot in Drake")
     _scenario_arguments(p)

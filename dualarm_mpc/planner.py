@@ -11,6 +11,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -36,6 +37,17 @@ class PlanningError(RuntimeError):
     def __init__(self, message: str, partial: Plan | None = None) -> None:
         super().__init__(message)
         self.partial = partial
+
+
+@dataclass(frozen=True)
+class HorizonTried:
+    """One horizon the planner tried: the ``step``-th sequential step (from 1), the state it
+    starts from, its specification and what the solve of that horizon gave."""
+
+    step: int
+    state: State
+    spec: Specification
+    result: StepResult
 
 
 class Interrupted(Exception):
@@ -172,7 +184,7 @@ def embed_step(scenario: Scenario, state: State, objects: list[int],
 
 def plan(scenario: Scenario, options: SolveOptions | None = None,
          progress: Callable[[Segment], None] | None = None,
-         on_try: Callable[[StepResult], None] | None = None) -> Plan:
+         on_try: Callable[[HorizonTried], None] | None = None) -> Plan:
     """Algorithm 1 (sequential transportation): plan m_o objects at a time until every object
     rests in its goal. ``progress`` hears of each step, ``on_try`` of each horizon tried.
     Raises :class:`PlanningError` with the reason when a step has no plan; when
@@ -197,6 +209,9 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
             partial=partial,
         )
 
+    def tried(res: StepResult) -> None:  # within plan_step: of the step being planned
+        on_try(HorizonTried(len(segments) + 1, state, spec, res))
+
     for _ in range(3 * scenario.n_objects):  # each step delivers >= 1 object unless stuck
         remaining = [j for j in range(scenario.n_objects) if not done[j]]
         if not remaining:
@@ -205,7 +220,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         spec = specification(scenario, objects, rules=rules)
         cpu0 = time.process_time()
         try:
-            res, total = plan_step(scenario, state, spec, options, on_try)
+            res, total = plan_step(scenario, state, spec, options, on_try and tried)
         except Interrupted:
             return finish(partial=True)
         except PlanningError as err:
