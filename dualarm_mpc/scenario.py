@@ -60,7 +60,7 @@ class RandomObjects:
 
 @dataclass
 class SolverOptions:
-    """Options of one MILP solve (design §3)."""
+    """Options of one MILP solve (docs/scenarios.md, the `solver:` fields)."""
 
     backend: str = "highs"  # or "scip", "gurobi", "cplex" where installed (solver.py)
     time_limit_s: float = 30.0
@@ -356,7 +356,7 @@ def _merged(current, value, path: str):
 
 
 def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> list[ObjectSpec]:
-    """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin (design §5)."""
+    """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin (docs/scenarios.md)."""
     rng = np.random.default_rng(seed)
     xmin, xmax, ymin, ymax = spec.region
     if spec.min_separation <= 0:
