@@ -1,4 +1,5 @@
-"""Shared helpers of the benchmark runners (bench/table2.py, bench/closed_loop.py).
+"""Shared helpers of the benchmark runners (bench/table2.py, bench/closed_loop.py,
+bench/robustness.py).
 
 The runners import it as ``from benchlib import ...``: run as ``python bench/x.py``, Python puts
 the script's folder on ``sys.path``.
@@ -9,13 +10,17 @@ from __future__ import annotations
 import argparse
 import importlib.metadata
 import json
+import logging
 import os
 import platform
 import subprocess
 import sys
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import dualarm_mpc
+from dualarm_mpc.solver import BACKENDS, installed_backends
 
 # --- command line ------------------------------------------------------------------------------
 
@@ -36,6 +41,91 @@ def parse_seeds(text: str) -> list[int]:
         raise argparse.ArgumentTypeError(f"no seeds in {text!r} (a single number is a count; "
                                          "seed 0 alone is 0-0)")
     return seeds
+
+
+def cluster_arguments(p: argparse.ArgumentParser) -> None:
+    """``--workers N`` (a local Dask cluster) and ``--scheduler ADDRESS`` (an existing one)."""
+    p.add_argument("--workers", "--jobs", dest="workers", type=int, default=1,
+                   help="run the runs as Dask tasks on a local cluster of N worker processes, "
+                        "one run each at a time (default 1: one run at a time in this process, "
+                        "without Dask; a run then has the machine to itself)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the runs as Dask tasks on the cluster whose scheduler is at ADDRESS "
+                        "(e.g. tcp://10.0.0.5:8786); its workers need dualarm_mpc installed")
+
+
+def check_cluster_arguments(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.workers < 1:
+        p.error("--workers must be >= 1")
+    if args.scheduler and args.workers > 1:
+        p.error("--workers starts a local cluster and --scheduler uses another: give one")
+
+
+# --- runs: in this process, or as Dask tasks ---------------------------------------------------
+
+
+def run_tasks(fn: Callable[[dict], dict], tasks: list[dict], workers: int = 1,
+              scheduler: str | None = None, modules: tuple[Path, ...] = ()
+              ) -> Iterator[tuple[int, dict]]:
+    """``fn(task)`` for every task, yielded as ``(index, record)`` as the runs finish: one after
+    the other in this process (``workers`` 1, no ``scheduler``; Dask is not needed), or as Dask
+    tasks on a local cluster of ``workers`` processes with one thread each, or on the cluster at
+    ``scheduler``, whose workers get ``modules`` (the helper modules ``fn`` imports) uploaded.
+
+    Each record gets ``host`` (where it ran) and ``runs_per_host``: how many runs that host ran
+    at once (its worker threads); above 1 the runs shared the machine, and their times show it.
+    """
+    if workers <= 1 and scheduler is None:
+        for i, task in enumerate(tasks):
+            yield i, {**fn(task), "host": platform.node(), "runs_per_host": 1}
+        return
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise SystemExit("--workers and --scheduler run on Dask: pip install "
+                         "'dualarm_mpc[dask]'") from None
+    cluster = None if scheduler else LocalCluster(
+        n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+        silence_logs=logging.ERROR)
+    with Client(scheduler or cluster) as client:
+        if scheduler:
+            for path in modules:
+                client.upload_file(str(path))
+        hosts = client.run(platform.node)  # worker address → its machine's name
+        slots: dict[str, int] = {}
+        for address, info in client.scheduler_info()["workers"].items():
+            slots[hosts[address]] = slots.get(hosts[address], 0) + info["nthreads"]
+        futures = {client.submit(fn, task, pure=False): i for i, task in enumerate(tasks)}
+        for future in as_completed(futures):
+            host = hosts.get(client.who_has(future)[future.key][0], "?")
+            yield futures[future], {**future.result(), "host": host,
+                                    "runs_per_host": slots.get(host, 1)}
+    if cluster is not None:
+        cluster.close()
+
+
+class Progress:
+    """A progress bar on stderr under the lines of the finished runs: redrawn in place on a
+    terminal, printed after each run's line otherwise (a log)."""
+
+    def __init__(self, total: int, width: int = 30) -> None:
+        self.total, self.width, self.done = total, width, 0
+        self.t0 = time.perf_counter()
+        self.tty = sys.stderr.isatty()
+
+    def advance(self, line: str) -> None:
+        self.done += 1
+        elapsed = time.perf_counter() - self.t0
+        left = elapsed / self.done * (self.total - self.done)
+        filled = self.width * self.done // self.total
+        bar = (f"[{'#' * filled}{'.' * (self.width - filled)}] {self.done}/{self.total} runs, "
+               f"{elapsed:.0f} s, about {left:.0f} s left")
+        if self.tty:
+            end = "\n" if self.done == self.total else ""
+            sys.stderr.write(f"\r\033[K{line}\n{bar}{end}")
+        else:
+            sys.stderr.write(f"{line}\n{bar}\n")
+        sys.stderr.flush()
 
 
 # --- Markdown ----------------------------------------------------------------------------------
@@ -70,6 +160,8 @@ def machine() -> dict:
         "cpu_count": os.cpu_count(), "python": sys.version.split()[0],
         "highspy": importlib.metadata.version("highspy"),
         "drake": importlib.metadata.version("drake"),
+        "solvers": {name: importlib.metadata.version(BACKENDS[name][0])
+                    for name in installed_backends()},
         "dualarm_mpc": str(package), "git_commit": git(package, "rev-parse", "HEAD"),
         "git_changes": git(package, "status", "--porcelain", "--", "."),
     }

@@ -13,10 +13,18 @@ Run it (from the repository root)::
     .venv/bin/python bench/table2.py                                  # the whole grid, ~hours
     .venv/bin/python bench/table2.py --rows 2,5 2,6 --rules 1 --seeds 3 --time-limit 10
     .venv/bin/python bench/table2.py --rows 2,6 --seeds 0-2 --compare-forms
+    .venv/bin/python bench/table2.py --workers 2                      # a local Dask cluster
+    .venv/bin/python bench/table2.py --scheduler tcp://10.0.0.5:8786  # an existing one
 
-One line per finished run goes to stderr; the Markdown tables go to stdout and next to the JSON
-(``--json``, default bench/results/table2.json, rewritten after every run), which holds every
-run's record, the summary rows, the machine and the options.
+Runs are Dask tasks with ``--workers N`` (a local cluster of N processes) or ``--scheduler``
+(needs ``pip install '.[dask]'``); without either they run one after the other here. The plans,
+costs and statuses are the same either way (a run's search picks its plan whatever its threads);
+only the timing columns differ, and the tables say whether runs shared a machine.
+
+One line per finished run goes to stderr, under a progress bar; the Markdown tables go to stdout
+and next to the JSON (``--json``, default bench/results/table2.json, rewritten after every run,
+runs in grid order), which holds every run's record, the summary rows, the machine and the
+options.
 """
 
 from __future__ import annotations
@@ -24,20 +32,32 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import statistics
 import sys
+import threading
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
 from pathlib import Path
 
-from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
+from benchlib import (
+    Progress,
+    check_cluster_arguments,
+    cluster_arguments,
+    fmt,
+    machine,
+    parse_seeds,
+    run_tasks,
+    table,
+    write_json_atomic,
+    write_report,
+)
 
-from dualarm_mpc.horizon import solve_step
+from dualarm_mpc.horizon import solve_step, solver_options
 from dualarm_mpc.mld import State
 from dualarm_mpc.planner import PlanningError, plan, predict_horizon
-from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario
+from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.spec import specification
 from dualarm_mpc.verify import verify
 
@@ -78,20 +98,22 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--compare-forms", action="store_true",
                    help="run both task forms and add a table comparing them")
     p.add_argument("--run-budget", type=float, default=None, metavar="S",
-                   help="stop a run after S s of wall time (checked between solves, so a run "
-                        "can overshoot by one solve); default: no budget")
+                   help="stop a run after S s of wall time (its solves are interrupted); "
+                        "default: no budget")
     p.add_argument("--search", choices=("skeleton", "monolithic"), default="skeleton",
                    help="how each step is solved: the skeleton search (default) or one MILP")
-    p.add_argument("--workers", "--jobs", dest="workers", type=int, default=1,
-                   help="runs in parallel processes, each solving with one thread (default 1: "
-                        "a run has the machine to itself and its search uses both cores)")
+    p.add_argument("--solver", choices=SOLVER_BACKENDS, default="highs",
+                   help="the MILP solver (default highs)")
+    cluster_arguments(p)
     p.add_argument("--compare", action="store_true",
                    help="also solve every step of every plan as one monolithic MILP from the "
                         "same state and horizon, and compare the optima")
     p.add_argument("--json", type=Path, default=Path("bench/results/table2.json"))
     p.add_argument("--summarize", type=Path, metavar="JSON",
                    help="print the tables of an earlier (possibly partial) run's JSON; run nothing")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    check_cluster_arguments(p, args)
+    return args
 
 
 def grid(args: argparse.Namespace) -> list[dict]:
@@ -99,20 +121,13 @@ def grid(args: argparse.Namespace) -> list[dict]:
     return [
         {"m_o": m, "n_o": n, "rule": rule, "seed": seed, "task_form": form,
          "time_limit_s": args.time_limit, "run_budget_s": args.run_budget,
-         "search": args.search, "shared_machine": args.workers > 1, "compare": args.compare}
+         "search": args.search, "solver": args.solver, "compare": args.compare,
+         "shared_machine": args.workers > 1 or args.scheduler is not None}
         for (m, n) in args.rows for rule in args.rules for seed in args.seeds for form in forms
     ]
 
 
 # --- one run -----------------------------------------------------------------------------------
-
-
-class RunBudgetExceeded(Exception):
-    """The run's wall-time budget ran out (raised between two solves)."""
-
-
-def _out_of_budget(signum, frame):
-    raise RunBudgetExceeded
 
 
 def step_starts(result):
@@ -143,33 +158,41 @@ def step_records(scenario, result, segments) -> list[dict]:
 def run_one(task: dict) -> dict:
     """Plan and verify one (row, rule, seed, form); always returns a record, never raises."""
     overrides = {k: task[k] for k in ("m_o", "n_o", "rule", "seed", "task_form")}
-    solver = {"time_limit_s": task["time_limit_s"], "search": task["search"]}
+    solver = {"time_limit_s": task["time_limit_s"], "search": task["search"],
+              "backend": task.get("solver", "highs")}
     if task["shared_machine"]:
-        solver["workers"] = 1  # the processes share the cores already
+        solver["workers"] = 1  # the runs share the cores already
     overrides |= {"delivery": "reach", "solver": solver}
     record = dict(task, status="error", message="", cost=None, solve_time_s=None,
                   cpu_time_s=None)
     segments, result, scenario = [], None, None
-    if task["run_budget_s"]:
-        signal.signal(signal.SIGALRM, _out_of_budget)
-        signal.setitimer(signal.ITIMER_REAL, task["run_budget_s"])
+    # The run budget interrupts the solves (a timer, not a signal: a Dask task runs on a
+    # worker's thread, where signals cannot be handled).
+    stop = Interrupt()
+    budget = threading.Timer(task["run_budget_s"], stop.set) if task["run_budget_s"] else None
     t0 = time.perf_counter()
     try:
         scenario = load_scenario(SCENARIO, overrides)
-        result = plan(scenario, progress=segments.append)
-        signal.setitimer(signal.ITIMER_REAL, 0)
-        check = verify(scenario, result)
-        record.update(status="ok" if check.ok else "verify_failed", problems=check.problems,
-                      cost=result.total_cost, solve_time_s=result.total_solve_time_s,
-                      cpu_time_s=result.total_cpu_time_s)
+        if budget:
+            budget.start()
+        result = plan(scenario, replace(solver_options(scenario), interrupt=stop),
+                      progress=segments.append)
+        if stop.is_set():  # a partial plan: its steps are in ``segments``
+            result = None
+            record.update(status="run_budget", message=f"stopped after {task['run_budget_s']} s")
+        else:
+            check = verify(scenario, result)
+            record.update(status="ok" if check.ok else "verify_failed", problems=check.problems,
+                          cost=result.total_cost, solve_time_s=result.total_solve_time_s,
+                          cpu_time_s=result.total_cpu_time_s)
     except PlanningError as err:
-        record.update(status="planning_error", message=str(err))
-    except RunBudgetExceeded:
-        record.update(status="run_budget", message=f"stopped after {task['run_budget_s']} s")
+        record.update(status="run_budget" if stop.is_set() else "planning_error",
+                      message=str(err))
     except Exception:  # a bug in one run must not end the bench: record it and go on
         record.update(message=traceback.format_exc(limit=3))
     finally:
-        signal.setitimer(signal.ITIMER_REAL, 0)
+        if budget:
+            budget.cancel()
     record["wall_time_s"] = time.perf_counter() - t0
     record["load_avg_1min"] = os.getloadavg()[0]  # other work on the machine skews the times
     record["steps"] = step_records(scenario, result, segments)
@@ -187,16 +210,6 @@ def compare_steps(scenario, result, steps: list[dict]) -> None:
         step["monolithic_status"] = mono.status.value
         step["monolithic_cost"] = mono.cost if mono.status.has_solution else None
         step["monolithic_time_s"] = mono.solve_time_s + mono.build_time_s
-
-
-def run_all(tasks: list[dict], workers: int):
-    """Yield records as runs finish: in order in this process, or in ``workers`` processes."""
-    if workers <= 1:
-        yield from map(run_one, tasks)
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for future in as_completed([pool.submit(run_one, t) for t in tasks]):
-            yield future.result()
 
 
 def progress_line(k: int, n: int, r: dict) -> str:
@@ -244,7 +257,7 @@ def summarize(records: list[dict], key: tuple) -> dict:
         "steps_at_limit": sum(s["status"] == "feasible" for s in tried),
         "extra_horizon_tries": sum(s["horizon"] - s["predicted_horizon"] for s in steps),
         "mean_cpu_time_s": statistics.fmean(r["cpu_time_s"] for r in ok) if ok else None,
-        "shared_machine": any(r.get("shared_machine") for r in runs),
+        "runs_per_host": max(r.get("runs_per_host", 1) for r in runs),
         **monolithic_agreement(steps),
     }
 
@@ -269,14 +282,19 @@ def table2(summary: list[dict], form: str) -> str:
     """The paper's Table II next to ours, for one task form."""
     header = ["(m_o,n_o)", "rule", "runs", "our mean cost", "paper cost", "cost ratio",
               "our mean time (s)", "paper time (s)", "time ratio", "steps proven optimal",
-              "CPU time (s)", "steps = monolithic"]
+              "CPU time (s)", "times taken", "steps = monolithic"]
     rows = [[f"({s['m_o']},{s['n_o']})", str(s["rule"]), f"{s['ok']}/{s['runs']}",
              fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]), fmt(s["cost_ratio"]),
              fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".3g"), fmt(s["time_ratio"]),
              f"{s['steps_optimal']}/{s['steps']}", fmt(s["mean_cpu_time_s"], ".1f"),
-             agreement(s)]
+             machine_use(s["runs_per_host"]), agreement(s)]
             for s in summary if s["task_form"] == form]
     return table(header, rows)
+
+
+def machine_use(runs_per_host: int) -> str:
+    """Whether a row's runs had their machine to themselves."""
+    return "alone" if runs_per_host <= 1 else f"{runs_per_host} runs per machine at once"
 
 
 def agreement(s: dict) -> str:
@@ -325,11 +343,12 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     summary = summary_rows(records)
     forms = FORMS if args.compare_forms else (args.task_form,)
     parts = []
+    most = max((r.get("runs_per_host", 1) for r in records), default=1)
+    shared = "one run at a time (the machine to itself)" if most <= 1 else \
+        f"up to {most} runs at once on a machine (shared: the times include their contention)"
     for form in forms:
-        shared = "runs in parallel processes (shared machine)" if args.workers > 1 else \
-            "one run at a time (the machine to itself)"
-        parts += [f"Table II, {args.search} search, task form {form}, time limit "
-                  f"{args.time_limit:g} s per horizon, {shared} "
+        parts += [f"Table II, {args.search} search on {getattr(args, 'solver', 'highs')}, task "
+                  f"form {form}, time limit {args.time_limit:g} s per horizon, {shared} "
                   f"(runs = verified plans / runs):", "", table2(summary, form), ""]
     parts += ["Detail:", "", detail(summary), ""]
     if args.compare_forms:
@@ -363,11 +382,13 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     tasks = grid(args)
     info = machine()
-    records: list[dict] = []
+    done: list[dict | None] = [None] * len(tasks)  # in grid order, whatever order runs end in
+    progress = Progress(len(tasks))
     t0 = time.perf_counter()
-    for k, record in enumerate(run_all(tasks, args.workers), 1):
-        records.append(record)
-        print(progress_line(k, len(tasks), record), file=sys.stderr, flush=True)
+    for k, (i, record) in enumerate(run_tasks(run_one, tasks, args.workers, args.scheduler), 1):
+        done[i] = record
+        progress.advance(progress_line(k, len(tasks), record))
+        records = [r for r in done if r is not None]
         write_json(args.json, args, records, info, complete=k == len(tasks))
     text = report(records, args) + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
     write_report(args.json, text)
