@@ -51,13 +51,17 @@ Run it (from the repository root)::
     .venv/bin/python bench/robustness.py                          # rules 1, 2 x seeds 0-14
     .venv/bin/python bench/robustness.py --rules 2 --seeds 3 --per-kind 2
     .venv/bin/python bench/robustness.py --workers 2 --json bench/results/robustness.json
+    .venv/bin/python bench/robustness.py --scheduler tcp://10.0.0.5:8786
     .venv/bin/python bench/robustness.py --summarize bench/results/robustness.json
 
 One line per run (and per disturbance) goes to stderr; the Markdown tables to stdout and next to
 the JSON (``--json``, default bench/results/robustness.json, rewritten after every run), which
 keeps every run's record (every disturbance, every replan), the summary per rule, the machine and
-the options. ``--workers N`` runs N runs at once in processes (each search then on one thread);
-the report then says the timings were taken on a shared machine.
+the options. ``--workers N`` runs the runs as Dask tasks on a local cluster of N processes (each
+search then on one thread), ``--scheduler ADDRESS`` on an existing cluster (needs ``pip install
+'.[dask]'``); without either they run one after the other here. The report then says how many
+runs shared a machine: the replan budget is wall time, so runs on a loaded machine may diverge
+(see Randomness above).
 """
 
 from __future__ import annotations
@@ -70,16 +74,28 @@ import sys
 import time
 import traceback
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import benchlib
+import closed_loop
 import numpy as np
-from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
+from benchlib import (
+    Progress,
+    check_cluster_arguments,
+    cluster_arguments,
+    fmt,
+    machine,
+    parse_seeds,
+    run_tasks,
+    table,
+    write_json_atomic,
+    write_report,
+)
 from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal
 
 from dualarm_mpc.mld import Box, target_box
-from dualarm_mpc.scenario import Event, Scenario, load_scenario, merge_overrides
+from dualarm_mpc.scenario import SOLVER_BACKENDS, Event, Scenario, load_scenario, merge_overrides
 from dualarm_mpc.simulate import World, default_duration, on_robot, simulate
 from dualarm_mpc.station import _table_extent
 
@@ -346,15 +362,17 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         f"plus {EXTRA_DURATION:g} s per disturbance)")
     p.add_argument("--set", action="append", type=parse_set, default=[], metavar="YAML",
                    help="extra scenario overrides, applied last (repeatable)")
-    p.add_argument("--workers", type=int, default=1,
-                   help="runs in parallel processes, each search on one thread (default 1)")
+    p.add_argument("--solver", choices=SOLVER_BACKENDS, default="highs",
+                   help="the MILP solver (default highs)")
+    cluster_arguments(p)
     p.add_argument("--json", type=Path, default=Path("bench/results/robustness.json"))
     p.add_argument("--summarize", type=Path, metavar="JSON",
                    help="print the tables of an earlier (possibly partial) run's JSON; run nothing")
     p.add_argument("--quiet", action="store_true", help="no per-replan lines on stderr")
     args = p.parse_args(argv)
-    if args.per_kind < 1 or args.workers < 1:
-        p.error("--per-kind and --workers must be >= 1")
+    if args.per_kind < 1:
+        p.error("--per-kind must be >= 1")
+    check_cluster_arguments(p, args)
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         p.error(f"--duration: must be a positive number, got {args.duration}")
     return args
@@ -366,13 +384,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def scenario_for(rule: int, seed: int, task: dict) -> Scenario:
     """``table1_vd`` with the robot's settings, this run's rule and seed, then ``--set``."""
     out = {**on_robot(load_scenario(SCENARIO)), "rule": rule, "seed": seed}
-    solver = {}
+    solver = {"backend": task.get("solver", "highs")}
     if task["time_limit"] is not None:
         solver["time_limit_s"] = task["time_limit"]
     if task["shared_machine"]:
-        solver["workers"] = 1  # the processes share the cores already
-    if solver:
-        out["solver"] = solver
+        solver["workers"] = 1  # the runs share the cores already
+    out["solver"] = solver
     for more in task["set"]:
         merge_overrides(out, more)
     return load_scenario(SCENARIO, out)
@@ -448,16 +465,6 @@ def run_one(task: dict) -> dict:
     return record
 
 
-def run_all(tasks: list[dict], workers: int):
-    """Yield records as runs finish: in order in this process, or in ``workers`` processes."""
-    if workers <= 1:
-        yield from map(run_one, tasks)
-        return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        for future in as_completed([pool.submit(run_one, t) for t in tasks]):
-            yield future.result()
-
-
 def describe(e: dict) -> str:
     if "skipped" in e:
         return f"{e['kind']} at {e['t']:.1f} s: skipped ({e['skipped']})"
@@ -521,7 +528,13 @@ def summarize(records: list[dict], rule: int) -> dict:
         "skipped": sum("skipped" in e for e in events),
         "mean_sim_time_s": sum(r["sim_time_s"] for r in ok) / len(ok) if ok else None,
         "shared_machine": any(r.get("shared_machine") for r in runs),
+        "runs_per_host": max((r.get("runs_per_host", 1) for r in runs), default=1),
     }
+
+
+def machine_use(runs_per_host: int) -> str:
+    """Whether a rule's runs had their machine to themselves."""
+    return "alone" if runs_per_host <= 1 else f"{runs_per_host} runs per machine at once"
 
 
 def share(n: int, d: int) -> str:
@@ -532,7 +545,7 @@ def main_table(summary: list[dict]) -> str:
     header = ["rule", "runs", "disturbances held / delivered / table / goal (skipped)",
               "objects delivered", "stuck (beyond reach)", "reachable delivered",
               "failed replans / replans", "over budget", "replan wall p95 / max (s)",
-              "mean sim time (s)"]
+              "mean sim time (s)", "times taken"]
     rows = []
     for s in summary:
         d = s["disturbances"]
@@ -544,7 +557,7 @@ def main_table(summary: list[dict]) -> str:
                      share(s["reachable_delivered"], s["reachable"]),
                      f"{s['failed_replans']}/{s['replans']}", str(s["replans_over_budget"]),
                      f"{fmt(w['p95'], '.2f')} / {fmt(w['max'], '.2f')}",
-                     fmt(s["mean_sim_time_s"], ".0f")])
+                     fmt(s["mean_sim_time_s"], ".0f"), machine_use(s["runs_per_host"])])
     return table(header, rows)
 
 
@@ -572,8 +585,9 @@ def detail_table(records: list[dict]) -> str:
 
 def report(records: list[dict], options: dict) -> str:
     summary = [summarize(records, rule) for rule in options["rules"]]
-    shared = ("runs in parallel processes: timings measured on a shared machine"
-              if options["workers"] > 1 else "one run at a time")
+    most = max((r.get("runs_per_host", 1) for r in records), default=1)
+    shared = (f"up to {most} runs at once on a machine: timings measured on a shared machine"
+              if most > 1 else "one run at a time")
     first = next((r for r in records if "m_o" in r), {})
     extra = "".join(f", {json.dumps(e)}" for e in options["set"])
     head = (f"Robustness, {SCENARIO} closed loop, (m_o, n_o) = ({first.get('m_o', '—')}, "
@@ -619,17 +633,21 @@ def main(argv: list[str] | None = None) -> int:
     if args.summarize:
         print(summarize_file(args.summarize))
         return 0
-    shared = args.workers > 1
+    shared = args.workers > 1 or args.scheduler is not None
     tasks = [{"rule": rule, "seed": seed, "per_kind": args.per_kind, "kinds": args.kinds,
               "time_limit": args.time_limit, "duration": args.duration, "set": args.set,
-              "shared_machine": shared, "quiet": args.quiet or shared}
+              "solver": args.solver, "shared_machine": shared, "quiet": args.quiet or shared}
              for rule in args.rules for seed in args.seeds]
     info = machine()
-    records: list[dict] = []
+    done: list[dict | None] = [None] * len(tasks)  # in task order, whatever order runs end in
+    progress = Progress(len(tasks))
+    helpers = tuple(Path(m.__file__) for m in (benchlib, closed_loop))  # for a remote cluster
     t0 = time.perf_counter()
-    for k, record in enumerate(run_all(tasks, args.workers), 1):
-        records.append(record)
-        print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
+    for k, (i, record) in enumerate(run_tasks(run_one, tasks, args.workers, args.scheduler,
+                                              helpers), 1):
+        done[i] = record
+        progress.advance(run_line(k, len(tasks), record))
+        records = [r for r in done if r is not None]
         write_json(args.json, args, records, info, complete=k == len(tasks))
     text = report(records, options_of(args)) + \
         f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"

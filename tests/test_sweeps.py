@@ -82,3 +82,13 @@ def test_run_tasks_yields_every_record_once_with_its_index() -> None:
     tasks = [{"n": n} for n in range(5)]
     got = dict(benchlib.run_tasks(lambda t: {"square": t["n"] ** 2}, tasks))
     assert {i: r["square"] for i, r in got.items()} == {n: n * n for n in range(5)}
+
+
+def test_robustness_takes_the_solver_and_the_cluster_flags() -> None:
+    import robustness
+
+    args = robustness.parse_args(["--seeds", "1", "--solver", "scip", "--workers", "2"])
+    assert (args.solver, args.workers, args.scheduler) == ("scip", 2, None)
+    task = {"time_limit": None, "shared_machine": True, "set": [], "solver": "scip"}
+    scenario = robustness.scenario_for(1, 0, task)
+    assert scenario.solver.backend == "scip" and scenario.solver.workers == 1
