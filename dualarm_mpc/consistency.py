@@ -22,8 +22,10 @@ import dataclasses
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
+import numpy as np
+
 from dualarm_mpc.horizon import HorizonProgram, solver_options
-from dualarm_mpc.ltl import Eventually, Formula, Or, eta
+from dualarm_mpc.ltl import And, Eventually, Formula, Or, eta
 from dualarm_mpc.mld import Box, State, target_box
 from dualarm_mpc.planner import at_rest_in_goal, select_objects
 from dualarm_mpc.scenario import Scenario
@@ -102,11 +104,27 @@ def _feasible(scenario: Scenario, state: State, spec: Specification,
     cap = scenario.solver.max_horizon
     undecided = False
     for T in [cap] if spec.monotone_in_horizon() else range(1, cap + 1):
-        res = HorizonProgram(scenario, state, list(spec.objects), T).solve(spec, options, hands=())
-        if res.status.has_solution:
-            return Status.FEASIBLE
-        undecided |= res.status is not Status.INFEASIBLE
+        program = HorizonProgram(scenario, state, list(spec.objects), T)
+        for case, allowed in _cases(spec):
+            res = program.solve(case, options, hands=(), allowed=allowed)
+            if res.status.has_solution:
+                return Status.FEASIBLE
+            undecided |= res.status is not Status.INFEASIBLE
     return Status.TIME_LIMIT if undecided else Status.INFEASIBLE
+
+
+def _cases(spec: Specification) -> list[tuple[Specification, np.ndarray | None]]:
+    """A one-object program split by who holds the object: hand 1 alone (or neither), hand 2
+    alone, both at some time (a hand-over). Every plan is in one of them, and each proves
+    infeasible much faster than the whole (§V-C, rule 1, T = 40: 0.04, 0.04 and 0.07 s of CPU
+    against 0.84 s). Steps of several objects stay whole."""
+    if len(spec.objects) != 1:
+        return [(spec, None)]
+    j = spec.objects[0] + 1
+    both = dataclasses.replace(spec, rules=spec.rules + (
+        ("both hands hold it", And((Eventually(eta(1, j)), Eventually(eta(2, j))))),))
+    return [(spec, np.array([[True], [False]])), (spec, np.array([[False], [True]])),
+            (both, None)]
 
 
 def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[str, Formula]],
