@@ -20,7 +20,7 @@ demo: $(BIN)/dualarm-mpc
 		--summary $(OUT)/summary.json
 
 test: $(BIN)/dualarm-mpc
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -rs  # -rs: a skipped test says why
 
 bench: $(BIN)/dualarm-mpc
 	$(BIN)/python bench/table2.py

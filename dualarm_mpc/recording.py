@@ -18,11 +18,12 @@ FOV_DEG = 30.0
 ASPECT = 1280 / 800
 ELEVATION_DEG = 60.0  # below the horizontal: steep enough that the columns hide no goal
 WORK_HEIGHT = 0.4  # m: the arms' links move this high over the table (models/dual_scara.sdf)
-FILL = 0.92  # of the view, in its tighter direction, the table takes (the rest is margin)
+FILL = 0.92  # of the view, in its tighter direction, the framed points span (the rest: margin)
 # Drawn by Meshcat itself or by Drake's contact visualizer: they clutter the view of the work.
 # Hidden, not deleted: each has its checkbox in the Scene panel.
 HIDDEN = ("/Grid", "/Axes", "/drake/contact_forces")
-# Meshcat collapses its controls at load; a replay is driven from them (play, pause, time).
+# Meshcat collapses its controls at load; a replay is driven from them (play, pause, time): open
+# them, with the long Scene tree folded so that Animations is at the top.
 OPEN_CONTROLS = "<script>viewer.gui.open(); viewer.gui.__folders.Scene.close();</script>\n</body>"
 
 
