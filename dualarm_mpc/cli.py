@@ -13,6 +13,7 @@ import math
 import os
 import sys
 import threading
+import time
 from pathlib import Path
 
 from dualarm_mpc.ltl import LTLSyntaxError
@@ -23,6 +24,9 @@ from dualarm_mpc.scenario import (
     merge_overrides,
     parse_override,
 )
+
+HEARTBEAT_S = 15.0  # seconds of a search without a line before it says it is still searching
+
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -169,10 +173,10 @@ def cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
-def _interruptible(work, stop):
+def _interruptible(work, stop, tick=lambda: None):
     """``work()`` on a thread, so that Ctrl-C reaches the main thread at once (a HiGHS run
     holds it until it returns); Ctrl-C stops the solves through ``stop`` (a
-    ``solver.Interrupt``) and ``work`` returns what it has."""
+    ``solver.Interrupt``) and ``work`` returns what it has. ``tick()`` runs every 0.1 s."""
     out: dict = {}
     done = threading.Event()  # not Thread.join: a join cut short by Ctrl-C can lose the thread
 
@@ -187,7 +191,7 @@ def _interruptible(work, stop):
     threading.Thread(target=run, daemon=True).start()
     try:
         while not done.wait(0.1):
-            pass
+            tick()
     except KeyboardInterrupt:
         stop.set()
         print("interrupted: stopping the solver", file=sys.stderr, flush=True)
@@ -213,8 +217,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
         print(f"{'step':>4}  {'delivered':<22} {'T':>3} {'binaries':>8}  {'status':<10} "
               f"{'solve [s]':>9}  {'cost':>7}")
     count = [0]
+    said = [time.perf_counter()] * 2  # the last line printed, the step's start
+
+    def heartbeat() -> None:  # a long search is never silent
+        now = time.perf_counter()
+        if now - said[0] >= HEARTBEAT_S:
+            print(f"{'':>4}  still searching step {count[0] + 1}: {now - said[1]:.0f} s so far",
+                  flush=True)
+            said[0] = now
 
     def progress(seg) -> None:
+        said[0] = said[1] = time.perf_counter()
         count[0] += 1
         names = ",".join(scenario.objects[j].name.removeprefix("object") for j in seg.delivered)
         fewer = len(seg.objects) < scenario.m_o  # the last objects: m_o shrinks to them
@@ -233,13 +246,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
             export(t)
         res = t.result
         if not res.status.has_solution:
+            said[0] = time.perf_counter()
             print(f"{'':>4}  {'':<22} {res.horizon:>3} {res.binaries:>8}  "
                   f"{res.status.value:<10} {res.solve_time_s:>9.2f}", flush=True)
 
     stop = Interrupt()
     options = dataclasses.replace(solver_options(scenario), interrupt=stop)
     try:
-        result = _interruptible(lambda: plan(scenario, options, progress, tried), stop)
+        result = _interruptible(lambda: plan(scenario, options, progress, tried), stop,
+                                heartbeat)
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)
         if err.partial is not None and err.partial.segments:

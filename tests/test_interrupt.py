@@ -70,3 +70,12 @@ def test_ctrl_c_during_simulate_writes_the_summary_and_replay(tmp_path) -> None:
     data = json.loads(summary.read_text())
     assert data["interrupted"] is True and data["sim_time_s"] > 0
     assert html.stat().st_size > 0
+
+
+def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monkeypatch) -> None:
+    from dualarm_mpc import cli
+
+    monkeypatch.setattr(cli, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
+    assert cli.main(["plan", "table1_vd", "--seed", "1", "--set", "random_objects.count: 2",
+                     "--mo", "1", "--no", "2"]) == 0
+    assert "still searching step 1:" in capsys.readouterr().out
