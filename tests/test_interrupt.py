@@ -76,6 +76,5 @@ def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monk
     from dualarm_mpc import cli
 
     monkeypatch.setattr(cli, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
-    assert cli.main(["plan", "table1_vd", "--seed", "1", "--set", "random_objects.count: 2",
-                     "--mo", "1", "--no", "2"]) == 0
+    assert cli.main(["plan", "table1_vd", "--seed", "1", "--set", "random_objects.count: 4"]) == 0
     assert "still searching step 1:" in capsys.readouterr().out
