@@ -5,6 +5,7 @@
     MpcPlanner ─plan─▶ Interpolator ─▶ Controller ─▶ MultibodyPlant ◀─▶ Gripper
         ▲                                                  │
         └──────────── measured_state ◀── StateEstimator ◀──┘
+                                  SceneGraph ─query─▶ ArmClearance
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.station import AddControlStack, AddStation, ControlStack, Station
+from dualarm_mpc.systems.clearance import ArmClearance
 from dualarm_mpc.systems.planner import MpcPlanner
 
 
@@ -27,6 +29,7 @@ class DualArm:
     station: Station
     stack: ControlStack
     planner: MpcPlanner
+    clearance: ArmClearance
 
 
 def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
@@ -39,10 +42,13 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     builder.Connect(stack.estimator.get_measured_state_output_port(),
                     planner.get_measured_state_input_port())
     builder.Connect(planner.get_plan_output_port(), stack.interpolator.get_plan_input_port())
+    clearance = builder.AddNamedSystem("arm_clearance", ArmClearance(station.arm_pairs))
+    builder.Connect(station.scene_graph.get_query_output_port(),
+                    clearance.get_geometry_query_input_port())
     if meshcat is not None:
         from pydrake.visualization import AddDefaultVisualization
 
         AddDefaultVisualization(builder, meshcat)
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
-    return DualArm(diagram, station, stack, planner)
+    return DualArm(diagram, station, stack, planner, clearance)

@@ -65,15 +65,14 @@ def camera_pose(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def show_the_work(meshcat: Meshcat, station: Station) -> None:
-    """Point the camera at the table, the arms' reach included, and hide the clutter. Call it
+    """Point the camera at the table and the arms' columns, and hide the clutter. Call it
     after the Simulator's initialization, which deletes and redraws the contact forces."""
     x0, x1, y0, y1 = station.table
     table = [[x, y, 0.0] for x in (x0, x1) for y in (y0, y1)]
-    reach = station.link_lengths[0]  # the elbows' circles around the bases, at the arms' height
-    elbows = [[*(base + (dx, dy)), WORK_HEIGHT] for base in station.arm_bases
-              for dx in (-reach, reach) for dy in (-reach, reach)]
+    # The columns, in front of the table; the elbows swing out beyond it at the sides.
+    columns = [[*base, WORK_HEIGHT] for base in station.arm_bases]
     meshcat.SetProperty(CAMERA, "fov", FOV_DEG)
-    meshcat.SetCameraPose(*camera_pose(np.array(table + elbows)))
+    meshcat.SetCameraPose(*camera_pose(np.array(table + columns)))
     for path in HIDDEN:
         meshcat.SetProperty(path, "visible", False)
 

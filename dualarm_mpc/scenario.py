@@ -98,7 +98,8 @@ class Scenario:
     dt: float = 1.0
     workspace: list[float] = field(default_factory=lambda: [-0.9, 0.9, 0.0, 0.9])
     hand_start: list[list[float]] = field(default_factory=lambda: [[0.1, 0.0], [-0.1, 0.0]])
-    arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, 0.3], [-0.3, 0.3]])
+    # In front of the hand range, not at Table I's (±0.3, 0.3): see docs/drake.md
+    arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, -0.8], [-0.3, -0.8]])
     max_speed: float = 0.2
     max_force: float = 0.1
     hand_gap: float = 0.1  # eq. (16): x_arm2 + hand_gap <= x_arm1

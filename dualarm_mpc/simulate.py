@@ -7,6 +7,7 @@ when every object rests in its goal (plus a short settle) or at ``duration``.
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -59,6 +60,9 @@ class Summary:
     # waited at rest) while the search went on. Their times, as in ``replans``.
     replans_over_budget: list[float] = field(default_factory=list)
     interrupted: bool = False  # stopped by Ctrl-C at ``sim_time_s``
+    # The least distance between the two arms' collision geometries over the run, sampled every
+    # 20 ms by SceneGraph (systems/clearance.py); None if the run took no sample.
+    min_arm_clearance_m: float | None = None
 
     def to_json(self) -> dict:
         return dict(self.__dict__)
@@ -229,4 +233,12 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float,
         replans_over_budget=[round(r.t, 3) for r in s.replans
                              if r.status in ("searching", "over_budget")],
         interrupted=interrupted,
+        min_arm_clearance_m=_min_arm_clearance(dual, context),
     )
+
+
+def _min_arm_clearance(dual, context) -> float | None:
+    clearance = dual.clearance.get_min_clearance_output_port().Eval(
+        dual.clearance.GetMyContextFromRoot(context))[0]
+    # floored to 0.1 mm, so that the value reported is never more than the one measured
+    return math.floor(clearance * 1e4) / 1e4 if np.isfinite(clearance) else None

@@ -12,7 +12,10 @@ properties, resting on it at their scenario positions. Table and objects share t
 friction μ = ``scenario.table_friction`` (so the combined μ is exactly that), low by design: a
 released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`` (the single
 source of its geometry and gains); the table, objects and goal patches are made here because
-their count, colours and friction come from the scenario.
+their count, colours and friction come from the scenario. The arms' collision geometries collide
+with the other arm's only: contact between an arm and the table or the objects is filtered out
+here (the gripper holds objects by force, with the hand inside the object), within an arm by
+the model's filter groups.
 """
 
 from __future__ import annotations
@@ -25,8 +28,12 @@ from pydrake.geometry import (
     AddContactMaterial,
     AddRigidHydroelasticProperties,
     Box,
+    CollisionFilterDeclaration,
+    GeometryId,
+    GeometrySet,
     HalfSpace,
     ProximityProperties,
+    Role,
     SceneGraph,
 )
 from pydrake.math import RigidTransform
@@ -89,6 +96,8 @@ class Station:
     time_step: float
     slide_time_constant: float | None  # the table's viscous drag on sliding objects (Gripper)
     table: list[float]  # the table top drawn: [x0, x1, y0, y1]
+    # The pairs of collision geometries, one of each arm (right first), that may touch.
+    arm_pairs: tuple[tuple[GeometryId, GeometryId], ...]
 
     @property
     def n_objects(self) -> int:
@@ -191,6 +200,26 @@ def _arm_geometry(plant: MultibodyPlant, joints) -> tuple[np.ndarray, tuple[floa
     return np.array(bases), (float(lengths[0][0]), float(lengths[0][1]))
 
 
+def _arm_pairs(plant: MultibodyPlant, robot: ModelInstanceIndex,
+               scene_graph: SceneGraph) -> tuple[tuple[GeometryId, GeometryId], ...]:
+    """Filters out contact between the arms and everything else (table, objects); returns
+    the pairs of collision geometries, one of each arm, left unfiltered (the two columns, both
+    welded to the world, are not)."""
+    arms = tuple(
+        tuple(g for body in plant.GetBodyIndices(robot)
+              if plant.get_body(body).name().startswith(f"{arm}_")
+              for g in plant.GetCollisionGeometriesForBody(plant.get_body(body)))
+        for arm in ARMS
+    )
+    robot_ids = [g for arm in arms for g in arm]
+    rest = [g for g in scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)
+            if g not in robot_ids]
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(robot_ids), GeometrySet(rest)))
+    inspector = scene_graph.model_inspector()
+    return tuple((a, b) for a in arms[0] for b in arms[1] if not inspector.CollisionFiltered(a, b))
+
+
 def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2e-3) -> Station:
     """Adds the plant and scene graph of ``scenario`` to ``builder``; returns what was made.
 
@@ -258,6 +287,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         time_step=time_step,
         slide_time_constant=scenario.slide_time_constant,
         table=_table_extent(scenario),
+        arm_pairs=_arm_pairs(plant, robot, scene_graph),
     )
 
 

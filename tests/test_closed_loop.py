@@ -14,7 +14,9 @@ planner's own plan. Scenes are small (1–3 objects) so the whole file runs in a
 * the Meshcat replay HTML is written and self-contained;
 * robustness: solver time-outs and failures (real ones, with a 1 ms time limit, and injected
   exceptions) are recorded and never stop the simulation;
-* the ``dualarm-mpc simulate`` CLI writes the summary JSON with the documented fields.
+* the ``dualarm-mpc simulate`` CLI writes the summary JSON with the documented fields;
+* §V-C and a §V-D run on the robot: every object delivered, the arms at least 1 cm apart
+  throughout (two long runs, marked slow).
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ import dualarm_mpc.systems.planner as planner_module
 from dualarm_mpc.cli import main
 from dualarm_mpc.recording import is_self_contained
 from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario
-from dualarm_mpc.simulate import Summary, simulate
+from dualarm_mpc.simulate import Summary, on_robot, simulate
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
 REST_SPEED = 0.01  # m/s: "at rest", as the summary and the planner count it
@@ -64,6 +66,7 @@ VC = {
 # must not depend on how fast the machine is (test_a_search_longer_than_the_budget... sets one).
 CLOSED_LOOP = {"delivery": "rest", "goal_margin": 0.03,
                "solver": {"time_limit_s": 10, "replan_budget_s": 60}}
+MIN_ARM_CLEARANCE = 0.01  # m: the arms' links keep at least this far apart all through a run
 
 
 def scene(name: str, objects: list[ObjectSpec], *, rule: int = 1, m_o: int = 1, n_o: int = 1,
@@ -197,6 +200,7 @@ def test_small_scene_every_object_ends_at_rest_in_its_goal(rule: int) -> None:
     assert summary.objects == [{"name": o.name, "goal": o.goal} for o in objects]
     assert_replans_recorded(summary, scenario)
     assert_timing(summary)
+    assert summary.min_arm_clearance_m >= MIN_ARM_CLEARANCE
     # the run stops soon after the last delivery rather than running to the default duration
     assert summary.sim_time_s <= max(summary.delivered_time_s) + 10 * scenario.dt
     # the hands stay in their range (the controller may overshoot a little)
@@ -223,6 +227,28 @@ def test_rule2_throws_an_object_onto_an_unreachable_goal_where_it_comes_to_rest(
     assert hand_y.max() <= VC_HAND_RANGE_Y + 0.01, f"a hand reached y = {hand_y.max():.3f}"
     assert summary.final_object_pos[0][1] > 0.95
     assert summary.final_object_pos[0][1] > hand_y.max() + 0.05
+    assert summary.min_arm_clearance_m >= MIN_ARM_CLEARANCE
+
+
+# --- the paper's scenes on the robot -----------------------------------------------------------
+
+
+def on_the_robot(name: str) -> Scenario:
+    """A built-in scenario as ``dualarm-mpc simulate`` runs it, the replan budget out of the way."""
+    return load_scenario(name, {**on_robot(load_scenario(name)),
+                                "solver": {"replan_budget_s": 60}})
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["table1_vc", "table1_vd"])
+def test_the_paper_scenes_deliver_every_object_with_the_arms_apart(name: str) -> None:
+    """§V-C (every object thrown) and §V-D (seed 0, rule 1): all ten objects rest in their
+    goals, and SceneGraph never finds the two arms closer than 1 cm."""
+    scenario = on_the_robot(name)
+    summary = simulate(scenario)
+    assert_all_at_rest_in_goals(summary)
+    assert_replans_recorded(summary, scenario)
+    assert summary.min_arm_clearance_m >= MIN_ARM_CLEARANCE
 
 
 # --- environment events ------------------------------------------------------------------------
@@ -402,8 +428,9 @@ def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:
     assert f"wrote {out}" in printed.out
     data = json.loads(out.read_text())
     for key in ("goals", "objects", "final_object_pos", "final_object_speed", "delivered_time_s",
-                "replans", "realtime_factor"):
+                "replans", "realtime_factor", "min_arm_clearance_m"):
         assert key in data, key
+    assert data["min_arm_clearance_m"] >= MIN_ARM_CLEARANCE
     assert data["goals"] == {"red": [0.225, 0.575, 0.65, 0.95],
                              "green": [-0.175, 0.175, 0.85, 1.15]}
     assert data["objects"] == [{"name": "object1", "goal": "red"}]

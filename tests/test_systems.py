@@ -14,7 +14,8 @@ from pydrake.systems.primitives import ConstantValueSource
 from dualarm_mpc.plan import TimedTrajectory, Trajectory
 from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
 from dualarm_mpc.scenario import ObjectSpec, Scenario, load_scenario
-from dualarm_mpc.station import AddControlStack, AddStation, goal_colour
+from dualarm_mpc.station import AddControlStack, AddStation, Station, goal_colour
+from dualarm_mpc.systems.clearance import ArmClearance
 from dualarm_mpc.systems.controller import (
     Controller,
     scara_fk,
@@ -117,8 +118,8 @@ def test_model_loads_from_installed_package():
 def test_station_reads_the_model_and_places_objects():
     scenario = load_scenario("table1_vc")
     station = AddStation(DiagramBuilder(), scenario)
-    np.testing.assert_allclose(station.arm_bases, [[0.3, 0.3], [-0.3, 0.3]])
-    assert station.link_lengths == pytest.approx((0.7, 0.7))
+    np.testing.assert_allclose(station.arm_bases, [[0.3, -0.8], [-0.3, -0.8]])
+    assert station.link_lengths == pytest.approx((0.9, 1.3))
     assert [b.name() for b in station.objects] == [o.name for o in scenario.objects]
     assert station.plant.time_step() == pytest.approx(2e-3)
     context = station.plant.CreateDefaultContext()
@@ -157,6 +158,108 @@ def test_ik_round_trip_through_the_plant_over_the_workspace():
             plant.SetPositions(context, q)
             x = plant.EvalBodyPoseInWorld(context, hand).translation()
             np.testing.assert_allclose(x, [*p, 0.07], atol=1e-9)
+
+
+# --- arms that keep clear ------------------------------------------------------------------------
+
+
+def arm_bodies(station: Station, arm: str) -> list:
+    plant = station.plant
+    return [plant.get_body(b) for b in plant.GetBodyIndices(station.robot)
+            if plant.get_body(b).name().startswith(f"{arm}_")]
+
+
+def collision_geometries(station: Station, bodies) -> set:
+    return {g for b in bodies for g in station.plant.GetCollisionGeometriesForBody(b)}
+
+
+def test_the_arms_collide_with_each_other_only():
+    """Every visual of the arms has its collision geometry; contact within an arm and between an
+    arm and the table or an object is filtered out; the pairs measured are every other pair of
+    one geometry of each arm."""
+    station = AddStation(DiagramBuilder(), one_object_scenario())
+    inspector = station.scene_graph.model_inspector()
+    right, left = (collision_geometries(station, arm_bodies(station, arm))
+                   for arm in ("right", "left"))
+    assert len(right) == len(left) == 7  # column, 2 beams, 2 hubs, tip, quill
+    world = collision_geometries(station, [station.plant.world_body(), *station.objects])
+    assert len(world) == 2  # the table and the object
+    for arm in (right, left):
+        assert all(inspector.CollisionFiltered(a, b) for a in arm for b in arm if a != b)
+        assert all(inspector.CollisionFiltered(a, w) for a in arm for w in world)
+    assert set(station.arm_pairs) == {(a, b) for a in right for b in left
+                                      if not inspector.CollisionFiltered(a, b)}
+    assert len(station.arm_pairs) == 7 * 7 - 1  # the two columns, both welded, are not
+
+
+class ArmPoser:
+    """The station alone, its arms posed by inverse kinematics; SceneGraph measures them."""
+
+    def __init__(self):
+        builder = DiagramBuilder()
+        self.station = AddStation(builder, one_object_scenario())
+        self.clearance = builder.AddSystem(ArmClearance(self.station.arm_pairs))
+        builder.Connect(self.station.scene_graph.get_query_output_port(),
+                        self.clearance.get_geometry_query_input_port())
+        self.diagram = builder.Build()
+        self.context = self.diagram.CreateDefaultContext()
+
+    def pose(self, context, hands, heights=(TRAVEL_HEIGHT, TRAVEL_HEIGHT)) -> None:
+        station = self.station
+        pc = station.plant.GetMyMutableContextFromRoot(context)
+        for i, (shoulder, elbow, z) in enumerate(station.arm_joints):
+            q1, q2 = scara_ik(hands[i], station.arm_bases[i], station.link_lengths,
+                              station.elbow_signs[i])
+            shoulder.set_angle(pc, q1)
+            elbow.set_angle(pc, q2)
+            z.set_translation(pc, heights[i])
+
+    def clearance_at(self, hands, heights=(TRAVEL_HEIGHT, TRAVEL_HEIGHT)) -> float:
+        self.pose(self.context, hands, heights)
+        sg = self.station.scene_graph
+        return self.clearance.clearance(
+            sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self.context)))
+
+
+def test_every_pair_of_hand_positions_eq_16_allows_keeps_the_arms_apart():
+    """The robot stands in front of the hand range: wherever eq. (16) lets the hands go in the
+    §V-D range (which holds §V-C's), hands at the travel or the grasp height, SceneGraph finds the
+    arms at least 5 cm apart (1 cm is the goal; the rest is room for the controller)."""
+    poser = ArmPoser()
+    gap = one_object_scenario().hand_gap
+    xs, ys = np.arange(-0.9, 0.901, 0.15), np.arange(-0.3, 0.901, 0.15)
+    least, k = np.inf, 0
+    for xl in xs:
+        for y_left in ys:
+            for xr in [xl + gap, *xs[xs > xl + gap]]:
+                for y_right in ys:
+                    if xr > 0.9 + 1e-9:
+                        continue
+                    heights = (TRAVEL_HEIGHT, GRASP_HEIGHT)[::1 if k % 2 else -1]
+                    least = min(least, poser.clearance_at([(xr, y_right), (xl, y_left)], heights))
+                    k += 1
+    assert k > 5000
+    assert least >= 0.05
+
+
+def test_crossed_arms_overlap_and_the_least_clearance_is_kept():
+    """ArmClearance samples from t = 0 and keeps the least distance seen: hands crossed
+    (the left one right of the right one) make it negative, and so it stays."""
+    poser = ArmPoser()
+    assert poser.clearance_at([(-0.2, 0.3), (0.2, 0.3)]) < 0  # crossed: links through links
+    simulator = Simulator(poser.diagram)
+    context = simulator.get_mutable_context()
+    port = poser.clearance.get_min_clearance_output_port()
+    clearance_context = poser.clearance.GetMyContextFromRoot(context)
+    assert port.Eval(clearance_context)[0] == np.inf  # no sample yet
+    poser.pose(context, [(-0.2, 0.3), (0.2, 0.3)])
+    simulator.AdvanceTo(0.005)
+    crossed = port.Eval(clearance_context)[0]
+    assert crossed < 0
+    poser.pose(context, [(0.3, 0.3), (-0.3, 0.3)])
+    simulator.AdvanceTo(0.05)
+    assert port.Eval(clearance_context)[0] == crossed
+    assert poser.clearance_at([(0.3, 0.3), (-0.3, 0.3)]) > 0.1
 
 
 def test_joint_velocity_inverts_the_jacobian():
@@ -289,7 +392,7 @@ def test_controller_output_reaches_the_reference_and_unwraps():
         assert q[3 * i + 2] == ref[6 * i + 2] and v[3 * i + 2] == ref[6 * i + 5]
         J = scara_jacobian(q[3 * i : 3 * i + 2], lengths)
         np.testing.assert_allclose(J @ v[3 * i : 3 * i + 2], ref[6 * i + 3 : 6 * i + 5], atol=1e-5)
-    assert q[1] < 0 < q[4]  # right elbow sign −1, left +1
+    assert q[4] < 0 < q[1]  # right elbow sign +1, left −1
 
 
 # --- physics -----------------------------------------------------------------------------------

@@ -7,12 +7,14 @@ elbow angle ``q2`` relative to link 1, hand height ``q3``)::
 
 Inverse: ``cos q2 = (|p − b|² − l1² − l2²) / (2 l1 l2)`` (clamped to [−1, 1] outside the reach),
 ``q2 = s·acos(·)`` with a fixed elbow sign ``s`` per arm, then
-``q1 = atan2(p − b) − atan2(l2 sin q2, l1 + l2 cos q2)``. The default signs (−1 right, +1 left)
-put the elbows outside, away from each other, when the hands work in front of the bases (the
-objects' side, y < 0.3). A fixed sign keeps the joint path continuous; it never flips elbows.
+``q1 = atan2(p − b) − atan2(l2 sin q2, l1 + l2 cos q2)``. The default signs (+1 right, −1 left)
+put each elbow on the outer side of the line from its base to its hand: the bases stand in front
+of the hands' range, so every hand lies beyond its base line and the elbows stay outside, away
+from each other (docs/drake.md, "Arms that keep clear"). A fixed sign keeps the joint path
+continuous; it never flips elbows.
 
 Joint velocities come from the Jacobian, inverted with a small damping near the singularities
-(stretched arm, hand over its own base), and clipped. The revolute angles are unwrapped to the
+(arm stretched or folded), and clipped. The revolute angles are unwrapped to the
 measured ones (the nearest multiple of 2π), so a reference crossing atan2's branch cut does not
 send the shoulder around a full turn.
 """
@@ -24,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
-ELBOW_SIGNS = (-1, 1)  # arm 1 (right), arm 2 (left): elbows point away from each other
+ELBOW_SIGNS = (1, -1)  # arm 1 (right), arm 2 (left): elbows point away from each other
 _DAMPING = 1e-3  # damped least squares near singularities (m)
 _MAX_JOINT_SPEED = 20.0  # rad/s clip of the reference joint speed
 
