@@ -17,7 +17,6 @@ CAMERA = "/Cameras/default/rotated/<object>"
 FOV_DEG = 30.0
 ASPECT = 1280 / 800
 ELEVATION_DEG = 60.0  # below the horizontal: steep enough that the columns hide no goal
-WORK_HEIGHT = 0.4  # m: the arms' links move this high over the table (models/dual_scara.sdf)
 FILL = 0.92  # of the view, in its tighter direction, the framed points span (the rest: margin)
 # Drawn by Meshcat itself or by Drake's contact visualizer: they clutter the view of the work.
 # Hidden, not deleted: each has its checkbox in the Scene panel.
@@ -65,14 +64,13 @@ def camera_pose(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def show_the_work(meshcat: Meshcat, station: Station) -> None:
-    """Point the camera at the table and the arms' columns, and hide the clutter. Call it
+    """Point the camera at the table, and hide the clutter. Call it
     after the Simulator's initialization, which deletes and redraws the contact forces."""
     x0, x1, y0, y1 = station.table
+    # The table only: the robot stands in front of it, and its arms reach in from below the view.
     table = [[x, y, 0.0] for x in (x0, x1) for y in (y0, y1)]
-    # The columns, in front of the table; the elbows swing out beyond it at the sides.
-    columns = [[*base, WORK_HEIGHT] for base in station.arm_bases]
     meshcat.SetProperty(CAMERA, "fov", FOV_DEG)
-    meshcat.SetCameraPose(*camera_pose(np.array(table + columns)))
+    meshcat.SetCameraPose(*camera_pose(np.array(table)))
     for path in HIDDEN:
         meshcat.SetProperty(path, "visible", False)
 
