@@ -2,8 +2,8 @@
 
 What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
 [-0.25, 0.25]² from the seed, reachable goals) with (m_o, n_o) = (2, 6), delivery ``rest`` and a
-goal margin of 0.03 m is run closed loop by :func:`dualarm_mpc.simulate.simulate`: the MPC planner
-replans every Δt = 1 s from the measured state while Drake simulates the dual SCARA robot.
+goal margin of 0.03 m is run closed loop by :func:`dualarm_mpc.closed_loop.simulate`: the MPC
+planner replans every Δt = 1 s from the measured state while Drake simulates the dual SCARA robot.
 
 * **objects delivered** — counted on the plant at the end of the run: objects whose final (x, y)
   is inside their goal box and whose speed is below 0.01 m/s (not the planner's own count);
@@ -46,8 +46,8 @@ import numpy as np
 import yaml
 from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
 
+from dualarm_mpc.closed_loop import on_robot, simulate
 from dualarm_mpc.scenario import load_scenario, merge_overrides
-from dualarm_mpc.simulate import on_robot, simulate
 
 SCENARIO = "table1_vd"
 M_O, N_O = 2, 6

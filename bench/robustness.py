@@ -2,7 +2,7 @@
 
 What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
 [-0.25, 0.25]² from the seed, reachable goals, its default (m_o, n_o)) with the robot's settings
-(:func:`dualarm_mpc.simulate.on_robot`) runs closed loop while a :class:`Disturbances` generator
+(:func:`dualarm_mpc.closed_loop.on_robot`) runs closed loop while a :class:`Disturbances` generator
 disturbs it, once per kind by default (``--per-kind``):
 
 * ``held`` — an object is knocked out of the hand that carries it (the gripper lets go);
@@ -94,9 +94,9 @@ from benchlib import (
 )
 from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal
 
-from dualarm_mpc.mld import Box, target_box
+from dualarm_mpc.closed_loop import World, default_duration, on_robot, simulate
+from dualarm_mpc.mld import Rect, target_box
 from dualarm_mpc.scenario import SOLVER_BACKENDS, Event, Scenario, load_scenario, merge_overrides
-from dualarm_mpc.simulate import World, default_duration, on_robot, simulate
 from dualarm_mpc.station import _table_extent
 
 SCENARIO = "table1_vd"
@@ -121,13 +121,13 @@ LOST_NOTE = " can no longer reach the goal"  # the planner's "stuck" replan note
 # --- the model's bounds: where an object can be delivered from --------------------------------
 
 
-def hand_ranges(scenario: Scenario) -> tuple[Box, Box]:
+def hand_ranges(scenario: Scenario) -> tuple[Rect, Rect]:
     """The range of hand 1 (right) and hand 2 (left): the workspace, less eq. (16)'s gap on the
     side of the other hand (x_arm2 + gap <= x_arm1, both inside the workspace)."""
-    ws = Box.of(scenario.workspace)
+    ws = Rect.of(scenario.workspace)
     gap = scenario.hand_gap
-    right = Box(ws.lo + [gap, 0.0], ws.hi.copy())
-    left = Box(ws.lo.copy(), ws.hi - [gap, 0.0])
+    right = Rect(ws.lo + [gap, 0.0], ws.hi.copy())
+    left = Rect(ws.lo.copy(), ws.hi - [gap, 0.0])
     return right, left
 
 
@@ -138,7 +138,7 @@ def stuck_reason(scenario: Scenario, goals: dict[str, list[float]], j: int,
     p = np.asarray(p, float)[:2]
     sc = replace(scenario, goals=goals)
     obj = sc.objects[j]
-    if Box.of(goals[obj.goal]).contains(p):
+    if Rect.of(goals[obj.goal]).contains(p):
         return None
     half = obj.grasp_half_size
     target = target_box(sc, j)
@@ -177,7 +177,7 @@ class Planned:
 
 @dataclass
 class Disturbances:
-    """Seeded random disturbances of one run (``dualarm_mpc.simulate.Disturbance``).
+    """Seeded random disturbances of one run (``dualarm_mpc.closed_loop.Disturbance``).
 
     ``log`` records every disturbance fired or skipped: kind, time, target, from/to (or the goal
     boxes), and, for knocks and goal moves, the objects it left stuck (``stuck_reason``)."""
@@ -200,7 +200,7 @@ class Disturbances:
             self.plan.append(Planned(kind, due, rng, give_up=due + PATIENCE, next_look=due))
         self.plan.sort(key=lambda d: d.due)
         sc = self.scenario
-        table = Box.of(_table_extent(sc)).shrink(sc.object_size / 2)
+        table = Rect.of(_table_extent(sc)).shrink(sc.object_size / 2)
         self.table = table  # where an object's centre may be: the whole box on the table top
         self.initial_stuck = {j: r for j in range(sc.n_objects)
                               if (r := stuck_reason(sc, sc.goals, j, sc.objects[j].position))}
@@ -241,7 +241,7 @@ class Disturbances:
         if resting.size == 0:
             return None, None
         j = int(d.rng.choice(resting))
-        goal = Box.of(world.goals[self.scenario.objects[j].goal])
+        goal = Rect.of(world.goals[self.scenario.objects[j].goal])
         margin = self.scenario.object_size / 2  # the whole box out of the goal
         return self._knock(d, world, j, lambda p: not goal.contains(p, tol=margin))
 
@@ -257,15 +257,15 @@ class Disturbances:
         sc = self.scenario
         names = sorted(world.goals)
         name = names[int(d.rng.integers(len(names)))]
-        old = Box.of(world.goals[name])
+        old = Rect.of(world.goals[name])
         size = old.hi - old.lo
-        ws = Box.of(sc.workspace)
-        region = Box(np.maximum(ws.lo, self.table.lo), np.minimum(ws.hi, self.table.hi) - size)
-        others = [Box.of(b) for g, b in world.goals.items() if g != name]
+        ws = Rect.of(sc.workspace)
+        region = Rect(np.maximum(ws.lo, self.table.lo), np.minimum(ws.hi, self.table.hi) - size)
+        others = [Rect.of(b) for g, b in world.goals.items() if g != name]
         strangers = [j for j, o in enumerate(sc.objects) if o.goal != name]
         for _ in range(TRIES):
             lo = d.rng.uniform(region.lo, region.hi)
-            new = Box(lo, lo + size)
+            new = Rect(lo, lo + size)
             if np.abs((new.lo + new.hi) / 2 - (old.lo + old.hi) / 2).max() < GOAL_SHIFT:
                 continue
             if any(_overlap(new, b, CLEARANCE) for b in others):
@@ -281,7 +281,7 @@ class Disturbances:
 
     def _resting(self, world: World) -> np.ndarray:
         sc = self.scenario
-        inside = np.array([Box.of(world.goals[o.goal]).contains(world.object_pos[j])
+        inside = np.array([Rect.of(world.goals[o.goal]).contains(world.object_pos[j])
                            for j, o in enumerate(sc.objects)])
         slow = np.linalg.norm(world.object_vel, axis=1) < 0.01
         return np.flatnonzero(inside & slow & ~world.grasp.any(axis=0))
@@ -340,7 +340,7 @@ class Disturbances:
             self.stuck.pop(j, None)
 
 
-def _overlap(a: Box, b: Box, gap: float) -> bool:
+def _overlap(a: Rect, b: Rect, gap: float) -> bool:
     return bool(np.all(a.lo < b.hi + gap) and np.all(b.lo < a.hi + gap))
 
 

@@ -36,9 +36,9 @@ from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_
 from table2 import SCENARIO, parse_row, step_starts
 
 from dualarm_mpc.horizon import HorizonProgram, solve_step
-from dualarm_mpc.planner import plan
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.search import search_step
+from dualarm_mpc.sequential import plan
 from dualarm_mpc.solver import SolverUnavailable, installed_backends
 from dualarm_mpc.spec import specification
 

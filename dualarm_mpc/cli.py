@@ -122,7 +122,7 @@ def _plot(path: str) -> str:
 def _objects_left(scenario) -> int:
     """How many objects do not yet rest in their goals; says so if none or fewer than m_o."""
     from dualarm_mpc.mld import State
-    from dualarm_mpc.planner import at_rest_in_goal
+    from dualarm_mpc.sequential import at_rest_in_goal
 
     left = int((~at_rest_in_goal(scenario, State.initial(scenario))).sum())
     if not left:
@@ -203,7 +203,7 @@ def _interruptible(work, stop, tick=lambda: None):
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from dualarm_mpc.horizon import solver_options
-    from dualarm_mpc.planner import PlanningError, plan
+    from dualarm_mpc.sequential import PlanningError, plan
     from dualarm_mpc.solver import Interrupt
     from dualarm_mpc.verify import verify
 
@@ -300,8 +300,8 @@ def _save_plan(result, args: argparse.Namespace, scenario) -> None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from dualarm_mpc.closed_loop import on_robot, simulate
     from dualarm_mpc.scenario import apply_overrides
-    from dualarm_mpc.simulate import on_robot, simulate
 
     base = load_scenario(args.scenario)
     overrides = on_robot(base)

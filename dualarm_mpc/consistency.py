@@ -26,9 +26,9 @@ import numpy as np
 
 from dualarm_mpc.horizon import HorizonProgram, solver_options
 from dualarm_mpc.ltl import And, Eventually, Formula, Or, eta
-from dualarm_mpc.mld import Box, State, target_box
-from dualarm_mpc.planner import at_rest_in_goal, select_objects
+from dualarm_mpc.mld import Rect, State, target_box
 from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.sequential import at_rest_in_goal, select_objects
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, rule_formulas, specification
 
@@ -175,7 +175,7 @@ def _reason(scenario: Scenario, j: int, rules: tuple[str, ...],
 
 def _beyond_reach(scenario: Scenario, j: int) -> str:
     """The bound that keeps a held object j out of its goal (``"y ≤ 0.95"``), or ""."""
-    ws = Box.of(scenario.workspace)
+    ws = Rect.of(scenario.workspace)
     half = scenario.objects[j].grasp_half_size
     goal = target_box(scenario, j)
     for axis, name in enumerate("xy"):

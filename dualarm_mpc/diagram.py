@@ -18,7 +18,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.station import AddControlStack, AddStation, ControlStack, Station
 from dualarm_mpc.systems.clearance import ArmClearance
-from dualarm_mpc.systems.planner import MpcPlanner
+from dualarm_mpc.systems.mpc_planner import MpcPlanner
 
 
 @dataclass(frozen=True)

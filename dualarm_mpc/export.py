@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from dualarm_mpc.horizon import HorizonProgram
-from dualarm_mpc.planner import HorizonTried
 from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.sequential import HorizonTried
 from dualarm_mpc.solver import write_mps
 
 INDEX = "index.json"
@@ -30,7 +30,7 @@ INDEX = "index.json"
 
 class MpsExport:
     """Writes the monolithic MILP of each horizon tried into ``directory`` (an ``on_try``
-    callback of :func:`planner.plan`)."""
+    callback of :func:`sequential.plan`)."""
 
     def __init__(self, scenario: Scenario, directory: str | Path) -> None:
         self.scenario = scenario

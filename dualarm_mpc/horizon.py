@@ -21,7 +21,7 @@ from pydrake.solvers import MathematicalProgram
 from dualarm_mpc import program
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import Box, Model, State, reachability, simulate
+from dualarm_mpc.mld import Model, Rect, State, reachability, replay
 from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import (
@@ -62,7 +62,7 @@ def solver_options(scenario: Scenario, time_limit_s: float | None = None) -> Sol
 def _resolver(spec: Specification, x: program.HorizonVariables, state: State, scenario: Scenario):
     """Atoms of the formulas → program variables (objects outside the step are constants)."""
     local = {j + 1: n for n, j in enumerate(spec.objects)}
-    goals = [Box.of(scenario.goals[o.goal]) for o in scenario.objects]
+    goals = [Rect.of(scenario.goals[o.goal]) for o in scenario.objects]
 
     def resolve(atom: Atom, k: int) -> Literal:
         idx = atom.index
@@ -181,7 +181,7 @@ class HorizonProgram:
                               bound=result.bound)
         values = result.x
         force = values[x.force]
-        traj = simulate(self.model, self.local_state, force, np.round(values[x.eta]).astype(int))
+        traj = replay(self.model, self.local_state, force, np.round(values[x.eta]).astype(int))
         cost = float(np.abs(force[:, list(narrow.get("hands", (0, 1)))]).sum())
         return StepResult(result.status, self.horizon, traj, cost, result.wall_time_s, build,
                           result.gap, binaries, values, x, result.message, bound=result.bound)

@@ -1,15 +1,15 @@
 """The mixed logical dynamical (MLD) model of two hands and N objects (paper §IV-A, docs/model.md).
 
 Pure data and math: the model's parameters and derived bounds, the reachability times used for
-pruning (§IV-C.2), and :func:`simulate`, which replays forces and grasps through the model. The
-MILP in ``program.py`` encodes the same model; :func:`simulate` is the independent re-simulation
+pruning (§IV-C.2), and :func:`replay`, which replays forces and grasps through the model. The
+MILP in ``program.py`` encodes the same model; :func:`replay` is the independent re-simulation
 every plan is checked against.
 
 Model (Δt = ``dt``; arm i = 0 is arm 1, the right arm; objects j):
 
 * hands, eq. (1) as double integrators: ``p⁺ = p + Δt·v``, ``v⁺ = v + Δt·u``;
-* objects, the picking model of eq. (8) as docs/model.md explains it (a rigid grasp and a one-step slide
-  after release, so that objects can be thrown):
+* objects, the picking model of eq. (8) as docs/model.md explains it (a rigid grasp and a
+  one-step slide after release, so that objects can be thrown):
 
   - held by hand i at k (η_ij(k) = 1): ``v_obj(k) = v_hand_i(k)``;
   - released at k (held at k−1, by no hand at k): ``v_obj(k) = v_obj(k−1)``;
@@ -35,25 +35,25 @@ POSITION_TOL = 1e-6  # m: "inside a box" on a replayed trace (solver round-off, 
 
 
 @dataclass(frozen=True)
-class Box:
+class Rect:
     """An axis-aligned rectangle (x_1, x_2) × (y_1, y_2) in the paper's notation."""
 
     lo: np.ndarray  # [xmin, ymin]
     hi: np.ndarray  # [xmax, ymax]
 
     @staticmethod
-    def of(bounds: list[float]) -> Box:
+    def of(bounds: list[float]) -> Rect:
         xmin, xmax, ymin, ymax = bounds
-        return Box(np.array([xmin, ymin], float), np.array([xmax, ymax], float))
+        return Rect(np.array([xmin, ymin], float), np.array([xmax, ymax], float))
 
     def contains(self, p: np.ndarray, tol: float = 0.0) -> np.ndarray:
         """Whether each point of ``p`` (…, 2) lies inside (to ``tol``)."""
         p = np.asarray(p)
         return np.all((p >= self.lo - tol) & (p <= self.hi + tol), axis=-1)
 
-    def shrink(self, margin: float) -> Box:
+    def shrink(self, margin: float) -> Rect:
         """The box with ``margin`` taken off every side."""
-        return Box(self.lo + margin, self.hi - margin)
+        return Rect(self.lo + margin, self.hi - margin)
 
     def bounds(self) -> list[float]:
         return [float(self.lo[0]), float(self.hi[0]), float(self.lo[1]), float(self.hi[1])]
@@ -104,8 +104,8 @@ class Model:
     v_max: float  # |v| per component, hands (objects move with a hand or slide at its speed)
     u_max: float  # |u| per component
     hand_gap: float  # eq. (16)
-    workspace: Box  # hand range
-    goals: tuple[Box, ...]  # goal box of each object, eq. (12)
+    workspace: Rect  # hand range
+    goals: tuple[Rect, ...]  # goal box of each object, eq. (12)
     grasp_half: np.ndarray  # (N,) half side of H_ij, eq. (11)
 
     @property
@@ -121,31 +121,31 @@ class Model:
             v_max=scenario.max_speed,
             u_max=scenario.max_force,
             hand_gap=scenario.hand_gap,
-            workspace=Box.of(scenario.workspace),
+            workspace=Rect.of(scenario.workspace),
             goals=tuple(target_box(scenario, j) for j in objects),
             grasp_half=np.array([scenario.objects[j].grasp_half_size for j in objects], float),
         )
 
-    def object_region(self, start: np.ndarray) -> Box:
+    def object_region(self, start: np.ndarray) -> Rect:
         """Where objects can ever be: where they start, or within a hand's reach of the hand range
         plus one slide step (docs/model.md). Every object big-M derives from this box."""
         reach = self.grasp_half.max(initial=0.0) + self.v_max * self.dt
         lo = np.minimum(self.workspace.lo - reach, np.min(start, axis=0, initial=np.inf))
         hi = np.maximum(self.workspace.hi + reach, np.max(start, axis=0, initial=-np.inf))
-        return Box(lo, hi)
+        return Rect(lo, hi)
 
 
-def target_box(scenario: Scenario, j: int) -> Box:
+def target_box(scenario: Scenario, j: int) -> Rect:
     """Where the planner aims object j: its goal box less ``goal_margin``; with ``goal_slots``,
     only the j-th of side-by-side columns of the goal, one per object of that goal, so that
     objects thrown later do not run into those already delivered."""
     goal = scenario.objects[j].goal
-    box = Box.of(scenario.goals[goal])
+    box = Rect.of(scenario.goals[goal])
     if scenario.goal_slots:
         sharing = [n for n, o in enumerate(scenario.objects) if o.goal == goal]
         width = (box.hi[0] - box.lo[0]) / len(sharing)
         x0 = box.lo[0] + width * sharing.index(j)
-        box = Box(np.array([x0, box.lo[1]]), np.array([x0 + width, box.hi[1]]))
+        box = Rect(np.array([x0, box.lo[1]]), np.array([x0 + width, box.hi[1]]))
     return box.shrink(scenario.goal_margin)
 
 
@@ -253,7 +253,7 @@ def _meet(lo1, hi1, lo2, hi2) -> bool:
 # --- re-simulation --------------------------------------------------------------------------------
 
 
-def simulate(model: Model, state: State, force: np.ndarray, grasp: np.ndarray) -> Trajectory:
+def replay(model: Model, state: State, force: np.ndarray, grasp: np.ndarray) -> Trajectory:
     """Replay ``force`` (K, 2, 2) and ``grasp`` (K+1, 2, N) through the model from ``state``.
 
     ``grasp[0]`` must equal ``state.grasp``. This is the reference semantics of the picking model;

@@ -357,7 +357,8 @@ def _merged(current, value, path: str):
 
 
 def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> list[ObjectSpec]:
-    """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin (docs/scenarios.md)."""
+    """§V-D: objects uniform in ``spec.region``; goal colours assigned round-robin
+    (docs/scenarios.md)."""
     rng = np.random.default_rng(seed)
     xmin, xmax, ymin, ymax = spec.region
     if spec.min_separation <= 0:

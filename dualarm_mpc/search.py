@@ -65,7 +65,7 @@ from dualarm_mpc.ltl import (
     atoms,
     conj,
 )
-from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Box, State, simulate, violations
+from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Rect, State, replay, violations
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification
@@ -336,7 +336,7 @@ class StepSearch:
         parts = [self.hand(i, node.share(i), exact) for i in range(N_HANDS)]
         force = np.stack([parts[i].trajectory.force[:, i] for i in range(N_HANDS)], axis=1)
         grasp = np.stack([parts[i].trajectory.grasp[:, i] for i in range(N_HANDS)], axis=1)
-        traj = simulate(self._model, self._program.local_state, force, grasp)
+        traj = replay(self._model, self._program.local_state, force, grasp)
         if self._feasible(traj):
             status = (Status.OPTIMAL if all(p.status is Status.OPTIMAL for p in parts)
                       else Status.FEASIBLE)
@@ -351,7 +351,7 @@ class StepSearch:
         return evaluate(self.spec.formula(), self._trace(traj), self.horizon)
 
     def _trace(self, traj):
-        goals = [Box.of(self.scenario.goals[o.goal]) for o in self.scenario.objects]
+        goals = [Rect.of(self.scenario.goals[o.goal]) for o in self.scenario.objects]
 
         def value(atom: Atom, k: int) -> bool:
             if atom.name == "eta":

@@ -1,6 +1,6 @@
-"""Verification: re-simulate a plan through the model and check its LTL specification on the trace.
+"""Verification: replay a plan through the model and check its LTL specification on the trace.
 
-The oracle for every plan: :func:`mld.simulate` replays the planned forces and grasps, the atoms
+The oracle for every plan: :func:`mld.replay` replays the planned forces and grasps, the atoms
 are read off the simulated trace exactly (θ_j(k) is "object j inside its goal box", two-sided),
 and each sequential step's specification is evaluated by ``evaluate.py`` — code that shares
 nothing with the MILP encoder.
@@ -14,7 +14,7 @@ import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import POSITION_TOL, Box, Model, State, simulate, violations
+from dualarm_mpc.mld import POSITION_TOL, Model, Rect, State, replay, violations
 from dualarm_mpc.plan import Plan, Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.spec import rule_formulas, specification
@@ -28,7 +28,7 @@ class Verification:
 
 def atom_trace(scenario: Scenario, traj: Trajectory, start: int, stop: int):
     """The atoms' truth on steps ``start..stop`` of ``traj`` as a callable ``(atom, k) -> bool``."""
-    goals = [Box.of(scenario.goals[o.goal]) for o in scenario.objects]
+    goals = [Rect.of(scenario.goals[o.goal]) for o in scenario.objects]
 
     def value(atom: Atom, k: int) -> bool:
         step = start + k
@@ -49,17 +49,17 @@ def verify(scenario: Scenario, plan: Plan) -> Verification:
     problems: list[str] = []
     model = Model.from_scenario(scenario)
     traj = plan.trajectory
-    replay = simulate(model, State.initial(scenario), traj.force, traj.grasp)
+    replayed = replay(model, State.initial(scenario), traj.force, traj.grasp)
     for name in ("hand_pos", "hand_vel", "object_pos", "object_vel"):
-        err = float(np.abs(getattr(replay, name) - getattr(traj, name)).max(initial=0.0))
+        err = float(np.abs(getattr(replayed, name) - getattr(traj, name)).max(initial=0.0))
         if err > POSITION_TOL:
             problems.append(f"{name} differs from the model's replay by {err:.2e}")
-    problems += violations(model, replay)
+    problems += violations(model, replayed)
     rules = rule_formulas(scenario, plan.rule)
     start = 0
     for n, seg in enumerate(plan.segments):
         spec = specification(scenario, seg.objects, rules=rules)
-        holds = atom_trace(scenario, replay, start, start + seg.horizon)
+        holds = atom_trace(scenario, replayed, start, start + seg.horizon)
         if not evaluate(spec.task(), holds, seg.horizon):
             problems.append(f"step {n + 1}: φ_task (13) is false on the replayed trace")
         for name, formula in spec.rules:
@@ -68,9 +68,9 @@ def verify(scenario: Scenario, plan: Plan) -> Verification:
         start += seg.horizon
     if start != traj.steps:
         problems.append(f"the steps' horizons add up to {start}, the trajectory has {traj.steps}")
-    end = State.last(replay)
+    end = State.last(replayed)
     for j, o in enumerate([] if plan.partial else scenario.objects):
-        inside = Box.of(scenario.goals[o.goal]).contains(end.object_pos[j], POSITION_TOL)
+        inside = Rect.of(scenario.goals[o.goal]).contains(end.object_pos[j], POSITION_TOL)
         if not inside or np.abs(end.object_vel[j]).max() > POSITION_TOL:
             problems.append(f"{o.name} does not end at rest in goal {o.goal}")
     return Verification(not problems, problems)

@@ -20,9 +20,9 @@ from test_program import knapsack, market_split
 from dualarm_mpc import backends
 from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.mld import State
-from dualarm_mpc.planner import predict_horizon, select_objects
 from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario
 from dualarm_mpc.search import search_step
+from dualarm_mpc.sequential import predict_horizon, select_objects
 from dualarm_mpc.solver import (
     BACKENDS,
     Interrupt,

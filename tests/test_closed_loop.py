@@ -1,7 +1,7 @@
-"""Closed-loop tests of :func:`dualarm_mpc.simulate.simulate`: the MPC planner drives the simulated
-dual SCARA robot in Drake, and every object must end *physically* at rest inside its goal.
+"""Closed-loop tests of :func:`dualarm_mpc.closed_loop.simulate`: the MPC planner drives the
+simulated dual SCARA robot in Drake, and every object must end *physically* at rest inside its goal.
 
-Everything here is judged on the plant, through the run's :class:`~dualarm_mpc.simulate.Summary`
+Everything here is judged on the plant, through the run's :class:`~dualarm_mpc.closed_loop.Summary`
 (where each object ended, how fast it still moves, when it came to rest in its goal), never on the
 planner's own plan. Scenes are small (1–3 objects) so the whole file runs in about two minutes:
 
@@ -30,12 +30,12 @@ import numpy as np
 import pytest
 from pydrake.systems.framework import EventStatus
 
-import dualarm_mpc.simulate as simulate_module
-import dualarm_mpc.systems.planner as planner_module
+import dualarm_mpc.closed_loop as simulate_module
+import dualarm_mpc.systems.mpc_planner as planner_module
 from dualarm_mpc.cli import main
+from dualarm_mpc.closed_loop import Summary, on_robot, simulate
 from dualarm_mpc.recording import is_self_contained
 from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario
-from dualarm_mpc.simulate import Summary, on_robot, simulate
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
 REST_SPEED = 0.01  # m/s: "at rest", as the summary and the planner count it

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from pydrake.solvers import MathematicalProgram
 from strategies import formulas, traces
 
-from dualarm_mpc import planner
+from dualarm_mpc import sequential
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import build_program, solve_step
@@ -359,7 +359,7 @@ def test_task_forms_give_the_same_optimal_cost(delivery: str) -> None:
     for form in ("counting", "subsets"):
         s = apply_overrides(scenario, {"task_form": form})
         spec = specification(s, [0, 1, 2])
-        results[form], _ = planner.plan_step(s, state, spec)
+        results[form], _ = sequential.plan_step(s, state, spec)
     counting, subsets = results["counting"], results["subsets"]
     assert counting.status is subsets.status is Status.OPTIMAL
     assert counting.horizon == subsets.horizon

@@ -11,8 +11,8 @@ import sys
 
 from dualarm_mpc.horizon import solver_options
 from dualarm_mpc.plan import Plan
-from dualarm_mpc.planner import plan
 from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.sequential import plan
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.verify import verify
 

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dualarm_mpc.mld import Box, Model, State, hand_reach, reachability, simulate, violations
+from dualarm_mpc.mld import Model, Rect, State, hand_reach, reachability, replay, violations
 
 PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -27,8 +27,8 @@ def model(
         v_max=v_max,
         u_max=u_max,
         hand_gap=0.1,
-        workspace=Box.of(list(workspace)),
-        goals=tuple(Box.of(list(g)) for g in goals),
+        workspace=Rect.of(list(workspace)),
+        goals=tuple(Rect.of(list(g)) for g in goals),
         grasp_half=np.full(n, half),
     )
 
@@ -54,7 +54,7 @@ def no_grasp(K: int, n: int = 1) -> np.ndarray:
     return np.zeros((K + 1, 2, n), int)
 
 
-# --- simulate ---------------------------------------------------------------------------------
+# --- replay ---------------------------------------------------------------------------------
 
 
 def test_double_integrator_by_hand() -> None:
@@ -64,7 +64,7 @@ def test_double_integrator_by_hand() -> None:
     force[0, 0] = [0.1, 0.05]
     force[1, 0] = [-0.1, 0.0]
     force[2, 1] = [0.0, 0.08]
-    t = simulate(m, s, force, no_grasp(3))
+    t = replay(m, s, force, no_grasp(3))
     # arm 1: v = 0.02,0 → 0.07,0.025 → 0.02,0.025 → same; p += 0.5·v of the step before
     np.testing.assert_allclose(
         t.hand_vel[:, 0], [[0.02, 0], [0.07, 0.025], [0.02, 0.025], [0.02, 0.025]]
@@ -94,7 +94,7 @@ def test_held_object_moves_with_the_hand_then_slides_one_step_and_rests() -> Non
     force[6, 0] = [-0.1, -0.2]  # after the release: the object no longer follows the hand
     grasp = no_grasp(K)
     grasp[1:5, 0, 0] = 1  # held at k = 1..4, released at k = 5
-    t = simulate(m, s, force, grasp)
+    t = replay(m, s, force, grasp)
     offset = t.object_pos[:, 0] - t.hand_pos[:, 0]
     # Grabbed at 1 (both still at their start); the offset is constant through step 5.
     np.testing.assert_allclose(offset[1:6], np.repeat([[0.03, 0.04]], 5, axis=0), atol=1e-12)
@@ -117,7 +117,7 @@ def test_object_held_at_the_start_and_released_slides_with_its_measured_velocity
     )
     grasp = no_grasp(3)
     grasp[0, 0, 0] = 1  # released at k = 1
-    t = simulate(m, s, np.zeros((3, 2, 2)), grasp)
+    t = replay(m, s, np.zeros((3, 2, 2)), grasp)
     np.testing.assert_allclose(t.object_vel[:, 0], [[0.1, 0.2], [0.1, 0.2], [0, 0], [0, 0]])
     np.testing.assert_allclose(t.object_pos[:, 0], [[0.1, 0], [0.15, 0.1], [0.2, 0.2], [0.2, 0.2]])
 
@@ -128,7 +128,7 @@ def test_handover_keeps_the_object_moving_with_the_new_hand() -> None:
     grasp = no_grasp(3)
     grasp[1, 0, 0] = 1
     grasp[2:, 1, 0] = 1
-    t = simulate(m, s, np.zeros((3, 2, 2)), grasp)
+    t = replay(m, s, np.zeros((3, 2, 2)), grasp)
     np.testing.assert_allclose(t.object_vel[:, 0], [[0, 0], [0, 0], [0, 0.1], [0, 0.1]])
 
 
@@ -149,7 +149,7 @@ def _valid():
 
 def test_a_valid_trajectory_has_no_violations() -> None:
     m, s, force, grasp = _valid()
-    assert violations(m, simulate(m, s, force, grasp)) == []
+    assert violations(m, replay(m, s, force, grasp)) == []
 
 
 @pytest.mark.parametrize(
@@ -184,14 +184,14 @@ def test_violations_catch_each_constraint(tamper: str, expected: str) -> None:
         grasp[1, 0, :] = 1
     elif tamper == "far_grab":
         grasp[3, 1, 1] = 1  # arm 2 at (-0.1, 0) grabs object 2 at (-0.3, 0.3)
-    problems = violations(m, simulate(m, s, force, grasp))
+    problems = violations(m, replay(m, s, force, grasp))
     assert len(problems) == 1 and expected in problems[0], problems
 
 
 def test_violation_tolerance() -> None:
     m, s, force, grasp = _valid()
     force[1, 1] = [0.0, 0.1 + 1e-7]
-    assert violations(m, simulate(m, s, force, grasp)) == []
+    assert violations(m, replay(m, s, force, grasp)) == []
 
 
 # --- reachability -----------------------------------------------------------------------------
@@ -269,13 +269,13 @@ def rollouts(draw):
     unit = st.floats(-1, 1, allow_nan=False)
     for k in range(1, K + 1):
         # force k-1 within |u| ≤ u_max keeping |v| ≤ v_max
-        v = simulate(m, s, force[: k - 1], grasp[:k]).hand_vel[-1]
+        v = replay(m, s, force[: k - 1], grasp[:k]).hand_vel[-1]
         lo = np.maximum(-u_max, (-v_max - v) / dt)
         hi = np.minimum(u_max, (v_max - v) / dt)
         w = np.array(draw(st.lists(st.tuples(unit, unit), min_size=2, max_size=2)))
         force[k - 1] = lo + (w + 1) / 2 * (hi - lo)
         # positions at k do not depend on grasp[k]: grab only what is inside the box
-        now = simulate(m, s, force[:k], np.concatenate([grasp[:k], grasp[k - 1 : k] * 0]))
+        now = replay(m, s, force[:k], np.concatenate([grasp[:k], grasp[k - 1 : k] * 0]))
         for i in draw(st.permutations([0, 1])):
             held = np.flatnonzero(grasp[k - 1, i])
             keep = len(held) > 0 and draw(st.booleans())  # carry on more often than not
@@ -292,7 +292,7 @@ def rollouts(draw):
 @given(rollouts())
 def test_reachability_is_sound(rollout) -> None:
     m, s, force, grasp = rollout
-    traj = simulate(m, s, force, grasp)
+    traj = replay(m, s, force, grasp)
     assert violations(m, traj) == []  # the generator obeys the model
     K = traj.steps
     r = reachability(m, s, K)

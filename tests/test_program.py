@@ -1,7 +1,7 @@
 """Tests for dualarm_mpc.program (the MILP of one horizon) and dualarm_mpc.solver (HiGHS adapter).
 
 The solver's raw solution of a step must be the model's own trajectory: replaying its forces and
-grasps through :func:`mld.simulate` (which shares no code with the MILP) reproduces its positions.
+grasps through :func:`mld.replay` (which shares no code with the MILP) reproduces its positions.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from pydrake.solvers import MathematicalProgram
 
-from dualarm_mpc import planner
+from dualarm_mpc import sequential
 from dualarm_mpc.horizon import build_program, solve_step
-from dualarm_mpc.mld import Model, State, simulate, violations
+from dualarm_mpc.mld import Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, apply_overrides, load_scenario
 from dualarm_mpc.solver import SolveOptions, Status, solve, standard_form
 from dualarm_mpc.spec import specification
@@ -46,7 +46,7 @@ def step(scenario: Scenario, objects: list[int]):
     scenario = replace(scenario, solver=replace(scenario.solver, search="monolithic"))
     state = State.initial(scenario)
     spec = specification(scenario, objects)
-    result, _ = planner.plan_step(scenario, state, spec)
+    result, _ = sequential.plan_step(scenario, state, spec)
     return state, spec, result
 
 
@@ -70,12 +70,12 @@ def test_solution_replays_through_the_model(case: str, objects: list[int]) -> No
     local = state.select(objects)
     eta = v[x.eta]
     assert np.abs(eta - np.round(eta)).max() < 1e-6  # integral
-    replay = simulate(model, local, v[x.force], np.round(eta).astype(int))
+    replayed = replay(model, local, v[x.force], np.round(eta).astype(int))
     for name in ("hand_pos", "hand_vel", "object_pos", "object_vel"):
         np.testing.assert_allclose(
-            v[getattr(x, name)], getattr(replay, name), atol=1e-6, err_msg=name
+            v[getattr(x, name)], getattr(replayed, name), atol=1e-6, err_msg=name
         )
-    assert violations(model, replay) == []
+    assert violations(model, replayed) == []
     # The one-sided atoms hold in the solver's own solution: θ = 1 → in the goal box.
     theta = np.round(v[x.theta]).astype(bool)
     for j in range(len(objects)):
@@ -84,8 +84,8 @@ def test_solution_replays_through_the_model(case: str, objects: list[int]) -> No
     # Cost (17) is the L1 norm of the forces.
     assert res.cost == pytest.approx(np.abs(v[x.force]).sum(), abs=1e-6)
     # The step ends at rest (docs/model.md) with every object of the step delivered.
-    np.testing.assert_allclose(replay.hand_vel[-1], 0.0, atol=1e-9)
-    np.testing.assert_allclose(replay.object_vel[-1], 0.0, atol=1e-9)
+    np.testing.assert_allclose(replayed.hand_vel[-1], 0.0, atol=1e-9)
+    np.testing.assert_allclose(replayed.object_vel[-1], 0.0, atol=1e-9)
 
 
 def test_a_throw_releases_at_speed_and_lands_beyond_the_reach() -> None:
@@ -177,7 +177,7 @@ def test_pruning_does_not_change_feasibility_or_optimal_cost(case: str, objects)
             break
     else:
         pytest.fail("no horizon up to 10 was feasible")
-    assert T >= planner.predict_horizon(scenario, state, spec)  # predictT is a lower bound
+    assert T >= sequential.predict_horizon(scenario, state, spec)  # predictT is a lower bound
 
 
 # --- the HiGHS adapter ---------------------------------------------------------------------------

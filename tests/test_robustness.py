@@ -16,9 +16,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 import robustness as rb  # noqa: E402
 
-from dualarm_mpc.mld import Box  # noqa: E402
+from dualarm_mpc.closed_loop import World, on_robot, simulate  # noqa: E402
+from dualarm_mpc.mld import Rect  # noqa: E402
 from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario  # noqa: E402
-from dualarm_mpc.simulate import World, on_robot, simulate  # noqa: E402
 
 
 def vd(rule: int = 1, seed: int = 0) -> Scenario:
@@ -153,7 +153,7 @@ def test_a_delivered_object_is_knocked_out_of_its_goal(seed) -> None:
     d = rb.Disturbances(sc, seed)
     pos = np.array([o.position for o in sc.objects])
     j = index_of_goal(sc, "blue")
-    goal = Box.of(sc.goals["blue"])
+    goal = Rect.of(sc.goals["blue"])
     pos[j] = (goal.lo + goal.hi) / 2
     w = world(sc, object_pos=pos)
     (e,) = fire(d, "delivered", w)
@@ -182,14 +182,14 @@ def test_a_goal_moves_inside_the_hand_range_clear_of_goals_and_other_objects(see
     w = world(sc)
     (e,) = fire(d, "goal", w)
     assert e.kind == "move_goal" and e.target in sc.goals
-    new, old = Box.of(e.box), Box.of(sc.goals[e.target])
-    ws = Box.of(sc.workspace)
+    new, old = Rect.of(e.box), Rect.of(sc.goals[e.target])
+    ws = Rect.of(sc.workspace)
     assert np.all(new.lo >= ws.lo - 1e-9) and np.all(new.hi <= ws.hi + 1e-9)
     assert np.allclose(new.hi - new.lo, old.hi - old.lo, atol=1e-3)
     assert np.abs((new.lo + new.hi - old.lo - old.hi) / 2).max() >= rb.GOAL_SHIFT - 1e-3
     for g, b in sc.goals.items():
         if g != e.target:
-            assert not rb._overlap(new, Box.of(b), 0.0)
+            assert not rb._overlap(new, Rect.of(b), 0.0)
     strangers = [j for j, o in enumerate(sc.objects) if o.goal != e.target]
     assert not new.contains(w.object_pos[strangers], tol=sc.object_size / 2).any()
 

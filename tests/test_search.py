@@ -19,7 +19,7 @@ from strategies import formulas, traces
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.ltl import FALSE, TRUE, Atom, parse
-from dualarm_mpc.mld import POSITION_TOL, Model, State, simulate, violations
+from dualarm_mpc.mld import POSITION_TOL, Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, apply_overrides
 from dualarm_mpc.search import StepSearch, partial, search_step, untouchable
 from dualarm_mpc.solver import SolveOptions, Status
@@ -136,16 +136,16 @@ def replayed_trace_satisfies(s: Scenario, spec, res) -> bool:
     model = Model.from_scenario(s, objects)
     traj = res.trajectory
     local = State.initial(s).select(objects)
-    replay = simulate(model, local, traj.force, traj.grasp)
-    if violations(model, replay):
+    replayed = replay(model, local, traj.force, traj.grasp)
+    if violations(model, replayed):
         return False
     def value(atom: Atom, k: int) -> bool:
         if atom.name == "eta":
             i, j = atom.index
-            return bool(replay.grasp[k, i - 1, objects.index(j - 1)])
+            return bool(replayed.grasp[k, i - 1, objects.index(j - 1)])
         (j,) = atom.index
         n = objects.index(j - 1)
-        return bool(model.goals[n].contains(replay.object_pos[k, n], POSITION_TOL))
+        return bool(model.goals[n].contains(replayed.object_pos[k, n], POSITION_TOL))
 
     return evaluate(spec.formula(), value, res.horizon)
 

@@ -44,8 +44,8 @@ def test_the_summary_compares_like_with_like() -> None:
 @pytest.mark.parametrize("backend", installed_backends())
 def test_one_step_on_every_installed_backend(backend) -> None:
     from dualarm_mpc.mld import State
-    from dualarm_mpc.planner import predict_horizon
     from dualarm_mpc.scenario import load_scenario
+    from dualarm_mpc.sequential import predict_horizon
     from dualarm_mpc.spec import specification
 
     s = load_scenario("table1_vd", {"m_o": 1, "n_o": 1, "rule": 2, "delivery": "reach"})

@@ -25,8 +25,8 @@ except ImportError:  # the ``test`` extra is not installed
 
 from dualarm_mpc import recording
 from dualarm_mpc.cli import main
+from dualarm_mpc.closed_loop import simulate
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.simulate import simulate
 
 # One object, §V-D bounds; the replan budget out of the way, so the arms move from the start.
 SCENE = """\

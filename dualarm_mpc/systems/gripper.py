@@ -1,9 +1,9 @@
 """Gripper: attaches objects to hands with a stiff in-plane spring-damper, and releases them.
 
 Weld constraints must exist before ``Finalize`` and can only be toggled from outside the Diagram;
-an off-centre weld also snaps the object across at several m/s (docs/drake.md, gripper). This gripper instead
-applies equal and opposite ``ExternallyAppliedSpatialForce``s to hand i and object j while the
-pair is attached::
+an off-centre weld also snaps the object across at several m/s (docs/drake.md, gripper). This
+gripper instead applies equal and opposite ``ExternallyAppliedSpatialForce``s to hand i and object j
+while the pair is attached::
 
     F_j = −k·(Δp − d_ij) − c·Δv,      Δp = p_j − p_hand_i,  Δv = v_j − v_hand_i   (x, y only),
 
@@ -14,9 +14,9 @@ velocity until the table stops it (a throw).
 
 The table (``slide_time_constant`` τ): an object that no hand holds feels the table's viscous
 drag ``F = −m·v/τ`` in the plane, so from speed v it slides ``v·τ`` — with τ = Δt, exactly the
-one-step slide of the planner's object model at *every* speed (docs/model.md, the one-step slide). Coulomb friction alone
-gives v²/(2μg), which matches v·Δt at one speed only: a throw at 0.35 m/s with μ tuned for
-0.5 m/s fell 10–15 cm short of the plan, beyond the hands' reach (measured).
+one-step slide of the planner's object model at *every* speed (docs/model.md, the one-step slide).
+Coulomb friction alone gives v²/(2μg), which matches v·Δt at one speed only: a throw at 0.35 m/s
+with μ tuned for 0.5 m/s fell 10–15 cm short of the plan, beyond the hands' reach (measured).
 
 Pair (i, j) attaches at an update when ``grasp_command[i·N + j] > 0.5`` and hand i is inside the
 grasp box of object j: ``|Δp|∞ ≤ grasp_half_size_j + tolerance`` in the plane and within

@@ -70,10 +70,10 @@ def node_velocities(traj: Trajectory, k: int) -> np.ndarray:
     """The hands' velocities (2, 2) the spline passes through at step k.
 
     That is ``hand_vel[k]``, except for a hand that releases an object at step k (η_ij(k−1) = 1,
-    η_ij(k) = 0): there ``hand_vel[k−1]``. In the plan's Euler model (docs/model.md, the one-step slide) the hand moves
-    with ``v(k−1)`` all through step k − 1 and the released object keeps ``v_obj(k) = v(k−1)``,
-    so the hand must be moving at ``v(k−1)`` when the grip opens at ``t_k``; ``v(k)`` may differ
-    from it by the whole force ``u(k−1)·Δt``. Positions are unchanged.
+    η_ij(k) = 0): there ``hand_vel[k−1]``. In the plan's Euler model (docs/model.md, the one-step
+    slide) the hand moves with ``v(k−1)`` all through step k − 1 and the released object keeps
+    ``v_obj(k) = v(k−1)``, so the hand must be moving at ``v(k−1)`` when the grip opens at ``t_k``;
+    ``v(k)`` may differ from it by the whole force ``u(k−1)·Δt``. Positions are unchanged.
     """
     v = np.array(traj.hand_vel[k], dtype=float)
     if k > 0:

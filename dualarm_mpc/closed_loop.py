@@ -22,9 +22,9 @@ from pydrake.systems.analysis import Simulator
 
 from dualarm_mpc import recording
 from dualarm_mpc.diagram import MakeDiagram
-from dualarm_mpc.mld import Box
+from dualarm_mpc.mld import Rect
 from dualarm_mpc.scenario import Event, Scenario
-from dualarm_mpc.systems.planner import REST_SPEED, Replan
+from dualarm_mpc.systems.mpc_planner import REST_SPEED, Replan
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
@@ -153,7 +153,8 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
                 if t < e.time <= stop:
                     simulator.AdvanceTo(e.time)
                     _apply(e, scenario, dual, context, meshcat)
-            while disturb is not None and (look := disturb.next_time()) is not None and look <= stop:
+            while (disturb is not None and (look := disturb.next_time()) is not None
+                   and look <= stop):
                 simulator.AdvanceTo(max(look, context.get_time()))
                 for e in disturb(_world(dual, context)):
                     _apply(e, scenario, dual, context, meshcat)
@@ -212,7 +213,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float,
     pos = np.array([plant.EvalBodyPoseInWorld(pc, b).translation() for b in dual.station.objects])
     speed = [float(np.linalg.norm(plant.EvalBodySpatialVelocityInWorld(pc, b).translational()))
              for b in dual.station.objects]
-    inside = [bool(Box.of(s.goals[o.goal]).contains(pos[j, :2]))
+    inside = [bool(Rect.of(s.goals[o.goal]).contains(pos[j, :2]))
               for j, o in enumerate(scenario.objects)]
     resting = [inside[j] and speed[j] < REST_SPEED for j in range(scenario.n_objects)]
     return Summary(

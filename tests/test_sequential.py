@@ -1,5 +1,5 @@
-"""Tests for dualarm_mpc.planner and dualarm_mpc.verify: whole plans, checked by an oracle that can
-fail (re-simulation + direct LTL evaluation), and the reasons given when there is no plan."""
+"""Tests for dualarm_mpc.sequential and dualarm_mpc.verify: whole plans, checked by an oracle that
+can fail (re-simulation + direct LTL evaluation), and the reasons given when there is no plan."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from dualarm_mpc import planner
+from dualarm_mpc import sequential
 from dualarm_mpc.horizon import solve_step
-from dualarm_mpc.mld import Box, State
+from dualarm_mpc.mld import Rect, State
 from dualarm_mpc.plan import Plan, Segment, Trajectory
-from dualarm_mpc.planner import PlanningError, plan
 from dualarm_mpc.scenario import Scenario, apply_overrides, load_scenario
+from dualarm_mpc.sequential import PlanningError, plan
 from dualarm_mpc.spec import specification
 from dualarm_mpc.verify import verify
 
@@ -39,13 +39,13 @@ def two_objects(**overrides) -> Scenario:
 def assert_every_object_rests_in_its_goal(scenario: Scenario, p: Plan) -> None:
     t = p.trajectory
     for j, o in enumerate(scenario.objects):
-        goal = Box.of(scenario.goals[o.goal])
+        goal = Rect.of(scenario.goals[o.goal])
         assert goal.contains(t.object_pos[-1, j], TOL), (o.name, t.object_pos[-1, j], o.goal)
         np.testing.assert_allclose(t.object_vel[-1, j], 0.0, atol=TOL, err_msg=o.name)
 
 
 def in_goal(scenario: Scenario, t: Trajectory, j: int) -> np.ndarray:
-    return Box.of(scenario.goals[scenario.objects[j].goal]).contains(t.object_pos[:, j], TOL)
+    return Rect.of(scenario.goals[scenario.objects[j].goal]).contains(t.object_pos[:, j], TOL)
 
 
 # --- plans that work ------------------------------------------------------------------------------
@@ -134,9 +134,9 @@ def test_horizon_is_the_smallest_feasible_one() -> None:
     scenario = two_objects(rule=2)
     state = State.initial(scenario)
     spec = specification(scenario, [0, 1])
-    res, _ = planner.plan_step(scenario, state, spec)
+    res, _ = sequential.plan_step(scenario, state, spec)
     T = res.horizon
-    assert planner.predict_horizon(scenario, state, spec) <= T
+    assert sequential.predict_horizon(scenario, state, spec) <= T
     assert not solve_step(scenario, state, spec, T - 1).status.has_solution
 
 
@@ -151,8 +151,8 @@ def test_select_objects_prefers_the_cheapest() -> None:
         n_o=2,
     )
     state = State.initial(scenario)
-    assert planner.select_objects(scenario, state, [0, 1, 2]) == [1, 2]
-    assert planner.select_objects(scenario, state, [0, 2]) == [0, 2]
+    assert sequential.select_objects(scenario, state, [0, 1, 2]) == [1, 2]
+    assert sequential.select_objects(scenario, state, [0, 2]) == [0, 2]
 
 
 # --- the oracle can fail --------------------------------------------------------------------------
@@ -191,11 +191,11 @@ def test_verify_catches_a_changed_force(rule2_plan) -> None:
 def test_verify_catches_a_consistent_but_wrong_plan(rule2_plan) -> None:
     """Re-simulate a plan whose grasps are all dropped: the replay matches, but the objects are
     never moved, so φ_task is false and no object ends in its goal."""
-    from dualarm_mpc.mld import Model, simulate
+    from dualarm_mpc.mld import Model, replay
 
     scenario, p = rule2_plan
     g = np.zeros_like(p.trajectory.grasp)
-    t = simulate(Model.from_scenario(scenario), State.initial(scenario), p.trajectory.force, g)
+    t = replay(Model.from_scenario(scenario), State.initial(scenario), p.trajectory.force, g)
     check = verify(scenario, dataclasses.replace(p, trajectory=t))
     assert not check.ok
     assert any("φ_task" in m for m in check.problems), check.problems
@@ -203,12 +203,12 @@ def test_verify_catches_a_consistent_but_wrong_plan(rule2_plan) -> None:
 
 
 def test_verify_catches_a_force_above_the_bound(rule2_plan) -> None:
-    from dualarm_mpc.mld import Model, simulate
+    from dualarm_mpc.mld import Model, replay
 
     scenario, p = rule2_plan
     f = p.trajectory.force.copy()
     f[-1, 1, 0] += 2 * scenario.max_force
-    t = simulate(Model.from_scenario(scenario), State.initial(scenario), f, p.trajectory.grasp)
+    t = replay(Model.from_scenario(scenario), State.initial(scenario), f, p.trajectory.grasp)
     check = verify(scenario, dataclasses.replace(p, trajectory=t))
     assert any("|u|" in m for m in check.problems), check.problems
 

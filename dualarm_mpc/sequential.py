@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dualarm_mpc.horizon import StepResult, solve_step, solver_options
-from dualarm_mpc.mld import POSITION_TOL, Box, Model, State, reachability
+from dualarm_mpc.mld import POSITION_TOL, Model, Rect, State, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
@@ -85,7 +85,7 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
     the nearer hand to the object plus the object's distance to its goal box."""
     def estimate(j: int) -> float:
         p = state.object_pos[j]
-        goal = Box.of(scenario.goals[scenario.objects[j].goal])
+        goal = Rect.of(scenario.goals[scenario.objects[j].goal])
         to_goal = np.linalg.norm(np.maximum(goal.lo - p, 0) + np.maximum(p - goal.hi, 0))
         to_hand = np.linalg.norm(state.hand_pos - p, axis=1).min()
         return float(to_hand + to_goal)
@@ -96,7 +96,7 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
 def at_rest_in_goal(scenario: Scenario, state: State) -> np.ndarray:
     """(N,) whether each object rests inside its goal."""
     inside = np.array([
-        Box.of(scenario.goals[o.goal]).contains(state.object_pos[j], 1e-9)
+        Rect.of(scenario.goals[o.goal]).contains(state.object_pos[j], 1e-9)
         for j, o in enumerate(scenario.objects)
     ])
     still = np.abs(state.object_vel).max(axis=1) <= REST_TOL
@@ -233,7 +233,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         now = at_rest_in_goal(scenario, state)
         newly = [j for j in objects if now[j] and not done[j]]
         for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
-            goal = Box.of(scenario.goals[scenario.objects[j].goal])
+            goal = Rect.of(scenario.goals[scenario.objects[j].goal])
             inside = np.flatnonzero(goal.contains(step.object_pos[:, j], POSITION_TOL))
             delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
         done = done | now

@@ -34,10 +34,10 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from dualarm_mpc.horizon import StepResult, solver_options
-from dualarm_mpc.mld import Box, Model, State, reachability
+from dualarm_mpc.mld import Model, Rect, State, reachability
 from dualarm_mpc.plan import TimedTrajectory
-from dualarm_mpc.planner import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.sequential import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.solver import Interrupt, SolveOptions, Status
 from dualarm_mpc.spec import Specification, rule_formulas, specification
 from dualarm_mpc.systems.interpolator import empty_plan, sample_grasp
@@ -303,7 +303,7 @@ class MpcPlanner(LeafSystem):
         are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest."""
         sc = self._scenario
         m = split_measured_state(measured, sc.n_objects)
-        ws = Box.of(sc.workspace)
+        ws = Rect.of(sc.workspace)
         hand_pos = np.clip(m["hand_pos"], ws.lo, ws.hi)
         hand_vel = np.clip(m["hand_vel"], -sc.max_speed, sc.max_speed)
         obj_pos, obj_vel = m["object_pos"].copy(), m["object_vel"].copy()
@@ -343,7 +343,7 @@ class MpcPlanner(LeafSystem):
         """Unheld objects whose one-step slide (the model's, and the table's v·τ) ends inside
         their goals."""
         landing = state.object_pos + sc.dt * state.object_vel
-        inside = np.array([Box.of(sc.goals[o.goal]).contains(landing[j])
+        inside = np.array([Rect.of(sc.goals[o.goal]).contains(landing[j])
                            for j, o in enumerate(sc.objects)])
         moving = np.linalg.norm(state.object_vel, axis=1) > 0
         return inside & moving & ~state.grasp.any(axis=0)
@@ -352,7 +352,7 @@ class MpcPlanner(LeafSystem):
     def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
         """Objects at rest inside their goals; one still held counts once its plan is over (the
         hand stopped there and lets go when it moves on)."""
-        inside = np.array([Box.of(sc.goals[o.goal]).contains(state.object_pos[j])
+        inside = np.array([Rect.of(sc.goals[o.goal]).contains(state.object_pos[j])
                            for j, o in enumerate(sc.objects)])
         slow = np.linalg.norm(state.object_vel, axis=1) < REST_SPEED
         return inside & slow & (exhausted | ~state.grasp.any(axis=0))
