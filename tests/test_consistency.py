@@ -5,29 +5,16 @@ that has a plan passes."""
 from __future__ import annotations
 
 import pytest
+from scenes import TWO_OBJECTS
 
 from dualarm_mpc.consistency import check
 from dualarm_mpc.scenario import load_scenario
 
-TWO = """\
-name: two
-goals:
-  red: [0.2, 0.4, 0.5, 0.7]
-  blue: [-0.4, -0.2, 0.5, 0.7]
-objects:
-  - {name: object1, position: [0.1, 0.1], goal: red}
-  - {name: object2, position: [-0.1, 0.2], goal: blue}
-rule: 2
-m_o: 2
-n_o: 2
-solver: {time_limit_s: 10, max_horizon: 15}
-"""
-
 
 @pytest.fixture
-def two(tmp_path):
-    path = tmp_path / "two.yaml"
-    path.write_text(TWO)
+def two(scenario_file):
+    """The shared two-object scene (rule 2, both objects in one step), from a file."""
+    path = scenario_file(TWO_OBJECTS, solver={"time_limit_s": 10, "max_horizon": 15})
     return lambda **over: load_scenario(path, over)
 
 

@@ -10,30 +10,22 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import scenes
 from pydrake.solvers import MathematicalProgram
+from scenes import OBJECT1, OBJECT2
 
 from dualarm_mpc import sequential
 from dualarm_mpc.horizon import build_program, solve_step
 from dualarm_mpc.mld import Model, State, replay, violations
-from dualarm_mpc.scenario import Scenario, apply_overrides, load_scenario
+from dualarm_mpc.scenario import Scenario, load_scenario
 from dualarm_mpc.solver import SolveOptions, Status, solve, standard_form
 from dualarm_mpc.spec import specification
 
-TWO = {
-    "name": "two",
-    "goals": {"red": [0.2, 0.4, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]},
-    "objects": [
-        {"name": "object1", "position": [0.1, 0.1], "goal": "red"},
-        {"name": "object2", "position": [-0.3, 0.3], "goal": "blue"},
-    ],
-    "m_o": 2,
-    "n_o": 2,
-    "rule": 2,
-}
-
 
 def two_objects(**overrides) -> Scenario:
-    return apply_overrides(Scenario(), {**TWO, **overrides})
+    """The shared scene with object 2 further out, at (−0.3, 0.3), under rule 2."""
+    return scenes.two_objects(**{"objects": [OBJECT1, {**OBJECT2, "position": [-0.3, 0.3]}],
+                                 "rule": 2, "solver": {}, **overrides})
 
 
 def thrown() -> Scenario:

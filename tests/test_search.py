@@ -14,13 +14,14 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scenes import OBJECT1, OBJECT2, two_objects
 from strategies import formulas, traces
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.ltl import FALSE, TRUE, Atom, parse
 from dualarm_mpc.mld import POSITION_TOL, Model, State, replay, violations
-from dualarm_mpc.scenario import Scenario, apply_overrides
+from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.search import StepSearch, partial, search_step, untouchable
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import RULE_TEXT, expand, specification, survives_idling
@@ -45,21 +46,11 @@ def test_partial_evaluation_folds_only_what_holds_at_every_step(text, known, exp
 
 
 def scene(rule: int = 2, rules: tuple[str, ...] = (), **overrides) -> Scenario:
-    data = {
-        "name": "search",
-        "goals": {"red": [0.2, 0.4, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]},
-        "objects": [
-            {"name": "object1", "position": [0.1, 0.1], "goal": "red"},
-            {"name": "object2", "position": [-0.1, 0.2], "goal": "blue"},
-            {"name": "object3", "position": [0.0, 0.0], "goal": "red"},
-        ],
-        "rule": rule,
-        "rules": list(rules),
-        "m_o": 1,
-        "n_o": 3,
-        "solver": {"time_limit_s": 30.0, "mip_rel_gap": 1e-7},
-    }
-    return apply_overrides(Scenario(), {**data, **overrides})
+    """The shared scene with a third object (to red, at the origin), one object per step."""
+    object3 = {"name": "object3", "position": [0.0, 0.0], "goal": "red"}
+    return two_objects(**{"name": "search", "objects": [OBJECT1, OBJECT2, object3],
+                          "rule": rule, "rules": list(rules), "m_o": 1, "n_o": 3,
+                          "solver": {"time_limit_s": 30.0, "mip_rel_gap": 1e-7}, **overrides})
 
 
 @pytest.mark.parametrize("rule", [1, 2])

@@ -7,33 +7,18 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scenes import two_objects
 
 from dualarm_mpc import sequential
 from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.mld import Rect, State
 from dualarm_mpc.plan import Plan, Segment, Trajectory
-from dualarm_mpc.scenario import Scenario, apply_overrides, load_scenario
+from dualarm_mpc.scenario import Scenario, load_scenario
 from dualarm_mpc.sequential import PlanningError, plan
 from dualarm_mpc.spec import specification
 from dualarm_mpc.verify import verify
 
 TOL = 1e-6
-
-
-def two_objects(**overrides) -> Scenario:
-    """Two objects, reachable goals that need a real carry (0.3–0.4 m)."""
-    data = {
-        "name": "two",
-        "goals": {"red": [0.2, 0.4, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]},
-        "objects": [
-            {"name": "object1", "position": [0.1, 0.1], "goal": "red"},
-            {"name": "object2", "position": [-0.1, 0.2], "goal": "blue"},
-        ],
-        "m_o": 2,
-        "n_o": 2,
-        "solver": {"time_limit_s": 10.0},
-    }
-    return apply_overrides(Scenario(), {**data, **overrides})
 
 
 def assert_every_object_rests_in_its_goal(scenario: Scenario, p: Plan) -> None:
