@@ -1,0 +1,25 @@
+"""The examples in ``examples/`` run as a user would run them, and do what they say."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def run(script: str, *args: str) -> str:
+    done = subprocess.run([sys.executable, str(EXAMPLES / script), *args], capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+@pytest.mark.slow
+def test_custom_rule_plans_verifies_and_plots(tmp_path) -> None:
+    out = run("custom_rule.py", str(tmp_path / "plan.png"))
+    assert "verified" in out and "(none of [1, 4])" in out
+    assert (tmp_path / "plan.png").stat().st_size > 0
