@@ -47,11 +47,11 @@ import yaml
 from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
 
 from dualarm_mpc.closed_loop import on_robot, simulate
+from dualarm_mpc.mld import REST_SPEED, in_goal
 from dualarm_mpc.scenario import load_scenario, merge_overrides
 
 SCENARIO = "table1_vd"
 M_O, N_O = 2, 6
-REST_SPEED = 0.01  # m/s: slower than this, an object is at rest (as in simulate's summary)
 SOLUTION = ("optimal", "feasible")
 NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object done, or none can be
 
@@ -102,14 +102,11 @@ def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict])
 
 def resting_in_goal(summary) -> list[bool]:
     """Per object: its final (x, y) inside its goal box (the true box, as the summary's goals
-    give it) and its speed below REST_SPEED — judged on the plant, not by the planner."""
-    out = []
-    for j, obj in enumerate(summary.objects):
-        x0, x1, y0, y1 = summary.goals[obj["goal"]]
-        x, y = summary.final_object_pos[j][:2]
-        out.append(bool(x0 <= x <= x1 and y0 <= y <= y1
-                        and summary.final_object_speed[j] < REST_SPEED))
-    return out
+    give it) and at rest on the robot (``mld.REST_SPEED``) — judged on the plant, not by the
+    planner: the summary's ``all_delivered``, per object."""
+    return [bool(in_goal(summary.final_object_pos[j][:2], summary.goals[obj["goal"]])
+                 and summary.final_object_speed[j] <= REST_SPEED)
+            for j, obj in enumerate(summary.objects)]
 
 
 def percentiles(values: list[float]) -> dict:

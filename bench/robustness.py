@@ -95,7 +95,7 @@ from benchlib import (
 from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal
 
 from dualarm_mpc.closed_loop import World, default_duration, on_robot, simulate
-from dualarm_mpc.mld import Rect, target_box
+from dualarm_mpc.mld import REST_SPEED, Rect, delivered, in_goal, target_box
 from dualarm_mpc.scenario import SOLVER_BACKENDS, Event, Scenario, load_scenario, merge_overrides
 from dualarm_mpc.station import _table_extent
 
@@ -138,7 +138,7 @@ def stuck_reason(scenario: Scenario, goals: dict[str, list[float]], j: int,
     p = np.asarray(p, float)[:2]
     sc = replace(scenario, goals=goals)
     obj = sc.objects[j]
-    if Rect.of(goals[obj.goal]).contains(p):
+    if in_goal(p, goals[obj.goal]):
         return None
     half = obj.grasp_half_size
     target = target_box(sc, j)
@@ -281,10 +281,10 @@ class Disturbances:
 
     def _resting(self, world: World) -> np.ndarray:
         sc = self.scenario
-        inside = np.array([Rect.of(world.goals[o.goal]).contains(world.object_pos[j])
-                           for j, o in enumerate(sc.objects)])
-        slow = np.linalg.norm(world.object_vel, axis=1) < 0.01
-        return np.flatnonzero(inside & slow & ~world.grasp.any(axis=0))
+        resting = np.array([delivered(world.object_pos[j], world.object_vel[j],
+                                      world.goals[o.goal], REST_SPEED)
+                            for j, o in enumerate(sc.objects)])
+        return np.flatnonzero(resting & ~world.grasp.any(axis=0))
 
     def _knock(self, d: Planned, world: World, j: int, accept):
         name = self.scenario.objects[j].name

@@ -1,7 +1,8 @@
 """Closed-loop simulation of a scenario: the Diagram run in time, environment events, summary JSON.
 
-Progress is reported per replan (sim time, objects delivered, solve wall time); the run stops
-when every object rests in its goal (plus a short settle) or at ``duration``.
+Progress is reported per replan (sim time, objects delivered, solve wall time). A ``Simulator``
+monitor records the replans, applies the events and ends the run when every object rests (plus a
+short settle) after the planner is done; or the run stops at ``duration``.
 """
 
 from __future__ import annotations
@@ -19,12 +20,13 @@ from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import Context, EventStatus
 
 from dualarm_mpc import recording
-from dualarm_mpc.diagram import MakeDiagram
-from dualarm_mpc.mld import Rect
+from dualarm_mpc.diagram import DualArm, MakeDiagram
+from dualarm_mpc.mld import REST_SPEED, at_rest, delivered
+from dualarm_mpc.mpc import Replan, Solve
 from dualarm_mpc.scenario import Event, Scenario
-from dualarm_mpc.systems.mpc_planner import REST_SPEED, Replan
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
@@ -113,111 +115,145 @@ def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
         gripper = dual.stack.gripper  # out of the hand: else the grip pulls it straight back
         gripper.detach(gripper.GetMyMutableContextFromRoot(context), j)
     else:
-        dual.planner.set_goal(dual.planner.GetMyMutableContextFromRoot(context), event.target,
-                              event.box)
+        dual.goals.set_goal(dual.goals.GetMyMutableContextFromRoot(context), event.target,
+                            event.box)
         if meshcat is not None:
             recording.show_goal(meshcat, event.target, event.box, context.get_time())
 
 
+class _Monitor:
+    """The run's ``Simulator`` monitor, called after every simulator step (the plant steps every
+    2 ms; nothing changes in between): records every replan from the planner's ``replan`` output
+    (and tells ``progress``), applies the scenario's events and the disturbance's at the first
+    step at or after their times, lets ``observe`` look, and ends the run
+    (``EventStatus.ReachedTermination``) once every object has stayed at rest for ``SETTLE_S``
+    after the last replan said ``done`` or ``stuck`` with no event pending. That end is judged,
+    as the planner replans, at the multiples of Δt."""
+
+    def __init__(self, scenario: Scenario, dual, meshcat, progress, disturb, observe) -> None:
+        self.scenario, self.dual, self.meshcat = scenario, dual, meshcat
+        self.progress, self.disturb, self.observe = progress, disturb, observe
+        self.events = sorted(scenario.events, key=lambda e: e.time)
+        self.next_event = 0
+        self.replans: list[Replan] = []
+        self.applied: list[Event] = []  # the disturbance's events
+        self.finished_at: float | None = None
+
+    def record(self, context) -> None:
+        planner = self.dual.planner
+        r = planner.get_replan_output_port().Eval(planner.GetMyContextFromRoot(context))
+        if r is not None and (not self.replans or r.t > self.replans[-1].t):
+            self.replans.append(r)
+            if self.progress:
+                self.progress(r)
+
+    def __call__(self, context) -> EventStatus:
+        self.record(context)
+        t = context.get_time()
+        while self.next_event < len(self.events) and self.events[self.next_event].time <= t:
+            _apply(self.events[self.next_event], self.scenario, self.dual, context, self.meshcat)
+            self.next_event += 1
+        d = self.disturb
+        while d is not None and (look := d.next_time()) is not None and look <= t:
+            for e in d(_world(self.dual, context)):
+                _apply(e, self.scenario, self.dual, context, self.meshcat)
+                self.applied.append(e)
+            after = d.next_time()
+            if after is not None and after <= look:
+                raise ValueError(f"disturb: next_time() stayed at {after} after a call")
+        if self.observe is not None:
+            self.observe(self.dual, context)
+        dt = self.scenario.dt
+        if t < dt / 2 or abs(t - dt * round(t / dt)) > 1e-9:
+            return EventStatus.Succeeded()
+        pending = self.next_event < len(self.events) or (d is not None
+                                                         and d.next_time() is not None)
+        if (self.replans and self.replans[-1].status in ("done", "stuck") and not pending
+                and _all_at_rest(self.dual, context)):
+            self.finished_at = t if self.finished_at is None else self.finished_at
+            if t - self.finished_at >= SETTLE_S - 1e-9:
+                return EventStatus.ReachedTermination(None, "every object at rest")
+        else:
+            self.finished_at = None
+        return EventStatus.Succeeded()
+
+
 def simulate(scenario: Scenario, duration: float | None = None, html: str | Path | None = None,
              progress: Callable[[Replan], None] | None = None,
-             disturb: Disturbance | None = None, meshcat: Meshcat | None = None) -> Summary:
+             disturb: Disturbance | None = None, meshcat: Meshcat | None = None, *,
+             observe: Callable[[DualArm, Context], None] | None = None,
+             solve: Solve | None = None) -> Summary:
     """Run the closed loop; write the Meshcat replay to ``html`` if given. ``disturb`` adds
     events decided during the run; the summary lists them after the scenario's. ``meshcat``: a
-    live server to draw the run in as it goes, at real time, and to replay it at the end."""
+    live server to draw the run in as it goes, at real time, and to replay it at the end.
+    ``observe(dual, root_context)`` is called after every simulator step (to look, not to
+    change anything); ``solve`` replaces the planner's solve of one horizon (``MakeDiagram``)."""
     duration = default_duration(scenario) if duration is None else duration
     live = meshcat is not None
     if not live and html:
         meshcat = recording.start_meshcat()
-    dual = MakeDiagram(scenario, meshcat)
+    dual = MakeDiagram(scenario, meshcat, solve=solve)
     simulator = Simulator(dual.diagram)
     context = simulator.get_mutable_context()
-    planner_context = dual.planner.GetMyContextFromRoot(context)
     if live:
         simulator.set_target_realtime_rate(1.0)  # at the speed a person watches
-    events = sorted(scenario.events, key=lambda e: e.time)
+    monitor = _Monitor(scenario, dual, meshcat, progress, disturb, observe)
+    simulator.set_monitor(monitor)
     wall0 = time.perf_counter()
-    simulator.Initialize()
-    if meshcat is not None:  # after: the page shows the scene at t = 0 while the replay loads
-        recording.show_the_work(meshcat, dual.station)
-        recording.start_recording(meshcat, live)
-    seen = 0
-    applied: list[Event] = []
-    finished_at = None
-    t = 0.0
     interrupted = False
     try:
-        while t < duration - 1e-9:
-            stop = min(t + scenario.dt, duration)
-            for e in events:
-                if t < e.time <= stop:
-                    simulator.AdvanceTo(e.time)
-                    _apply(e, scenario, dual, context, meshcat)
-            while (disturb is not None and (look := disturb.next_time()) is not None
-                   and look <= stop):
-                simulator.AdvanceTo(max(look, context.get_time()))
-                for e in disturb(_world(dual, context)):
-                    _apply(e, scenario, dual, context, meshcat)
-                    applied.append(e)
-                after = disturb.next_time()
-                if after is not None and after <= look:
-                    raise ValueError(f"disturb: next_time() stayed at {after} after a call")
-            simulator.AdvanceTo(stop)
-            t = stop
-            replans = dual.planner.mpc_state(planner_context).replans
-            for r in replans[seen:]:
-                if progress:
-                    progress(r)
-            seen = len(replans)
-            pending = [e for e in events if e.time > t] or (
-                disturb is not None and disturb.next_time() is not None)
-            if (replans and replans[-1].status in ("done", "stuck") and not pending
-                    and _all_still(dual, context)):
-                finished_at = finished_at if finished_at is not None else t
-                if t - finished_at >= SETTLE_S:
-                    break
-            else:
-                finished_at = None
+        simulator.Initialize()
+        if meshcat is not None:  # after: the page shows the scene at t = 0 while the replay loads
+            recording.show_the_work(meshcat, dual.station)
+            recording.start_recording(meshcat, live)
+        simulator.AdvanceTo(duration)
     except KeyboardInterrupt:  # Ctrl-C: the run so far is kept, summary and replay included
         interrupted = True
-        t = context.get_time()
+    t = context.get_time()
+    monitor.record(context)  # a replan of the step Ctrl-C cut short
     wall = time.perf_counter() - wall0
-    dual.planner.close()
+    dual.planner.close(dual.planner.GetMyContextFromRoot(context))
     if meshcat is not None:
         recording.save_recording(meshcat, html)
-    return _summary(scenario, dual, context, t, wall, applied, interrupted)
+    return _summary(scenario, dual, context, t, wall, monitor.replans, monitor.applied,
+                    interrupted)
 
 
 def _world(dual, context) -> World:
     m = split_measured_state(dual.stack.estimator.get_measured_state_output_port().Eval(
         dual.stack.estimator.GetMyContextFromRoot(context)), dual.station.n_objects)
     s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
+    goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
     return World(t=context.get_time(), hand_pos=m["hand_pos"].copy(),
                  object_pos=m["object_pos"].copy(), object_vel=m["object_vel"].copy(),
-                 grasp=m["grasp"] > 0.5, goals={k: list(v) for k, v in s.goals.items()},
+                 grasp=m["grasp"] > 0.5, goals={k: list(v) for k, v in goals.items()},
                  delivered=np.array([d is not None for d in s.delivered_time], bool))
 
 
-def _all_still(dual, context) -> bool:
+def _object_velocities(dual, context) -> np.ndarray:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
-    return all(np.linalg.norm(plant.EvalBodySpatialVelocityInWorld(pc, b).translational())
-               < REST_SPEED for b in dual.station.objects)
+    return np.array([plant.EvalBodySpatialVelocityInWorld(pc, b).translational()
+                     for b in dual.station.objects])
 
 
-def _summary(scenario: Scenario, dual, context, t: float, wall: float,
+def _all_at_rest(dual, context) -> bool:
+    return bool(at_rest(_object_velocities(dual, context), REST_SPEED).all())
+
+
+def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: list[Replan],
              applied: list[Event] = (), interrupted: bool = False) -> Summary:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
     s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
+    goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
     pos = np.array([plant.EvalBodyPoseInWorld(pc, b).translation() for b in dual.station.objects])
-    speed = [float(np.linalg.norm(plant.EvalBodySpatialVelocityInWorld(pc, b).translational()))
-             for b in dual.station.objects]
-    inside = [bool(Rect.of(s.goals[o.goal]).contains(pos[j, :2]))
-              for j, o in enumerate(scenario.objects)]
-    resting = [inside[j] and speed[j] < REST_SPEED for j in range(scenario.n_objects)]
+    vel = _object_velocities(dual, context)
+    speed = [float(np.linalg.norm(v)) for v in vel]
+    resting = [bool(delivered(pos[j, :2], vel[j], goals[o.goal], REST_SPEED))
+               for j, o in enumerate(scenario.objects)]
     return Summary(
-        goals=s.goals,
+        goals={k: list(v) for k, v in goals.items()},
         objects=[{"name": o.name, "goal": o.goal} for o in scenario.objects],
         final_object_pos=np.round(pos, 6).tolist(),
         final_object_speed=[round(v, 6) for v in speed],
@@ -225,13 +261,13 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float,
         replans=[{"t": round(r.t, 3), "wall_s": round(r.wall_s, 4), "status": r.status,
                   "cost": r.cost, "horizon": r.horizon,
                   "objects": [scenario.objects[j].name for j in r.objects],
-                  "delivered": r.delivered, "note": r.note} for r in s.replans],
+                  "delivered": r.delivered, "note": r.note} for r in replans],
         realtime_factor=round(t / wall, 4) if wall > 0 else float("inf"),
         sim_time_s=round(t, 3),
         wall_time_s=round(wall, 3),
         all_delivered=all(resting),
         events=[e.__dict__ for e in [*scenario.events, *applied]],
-        replans_over_budget=[round(r.t, 3) for r in s.replans
+        replans_over_budget=[round(r.t, 3) for r in replans
                              if r.status in ("searching", "over_budget")],
         interrupted=interrupted,
         min_arm_clearance_m=_min_arm_clearance(dual, context),

@@ -2,9 +2,9 @@
 
 ::
 
-    MpcPlanner ─plan─▶ Interpolator ─▶ Controller ─▶ MultibodyPlant ◀─▶ Gripper
-        ▲                                                  │
-        └──────────── measured_state ◀── StateEstimator ◀──┘
+    GoalSource ─goals─▶ MpcPlanner ─plan─▶ Interpolator ─▶ Controller ─▶ MultibodyPlant ◀─▶ Gripper
+                            ▲                                                  │
+                            └──────────── measured_state ◀── StateEstimator ◀──┘
                                   SceneGraph ─query─▶ ArmClearance
 """
 
@@ -15,9 +15,11 @@ from dataclasses import dataclass
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Diagram, DiagramBuilder
 
+from dualarm_mpc.mpc import Solve
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.station import AddControlStack, AddStation, ControlStack, Station
 from dualarm_mpc.systems.clearance import ArmClearance
+from dualarm_mpc.systems.goals import GoalSource
 from dualarm_mpc.systems.mpc_planner import MpcPlanner
 
 
@@ -30,15 +32,19 @@ class DualArm:
     stack: ControlStack
     planner: MpcPlanner
     clearance: ArmClearance
+    goals: GoalSource
 
 
 def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
-                time_step: float = 2e-3) -> DualArm:
-    """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there."""
+                time_step: float = 2e-3, solve: Solve | None = None) -> DualArm:
+    """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there.
+    ``solve`` replaces the planner's solve of one horizon (``MpcPlanner``)."""
     builder = DiagramBuilder()
     station = AddStation(builder, scenario, time_step)
     stack = AddControlStack(builder, station)
-    planner = builder.AddNamedSystem("mpc_planner", MpcPlanner(scenario))
+    planner = builder.AddNamedSystem("mpc_planner", MpcPlanner(scenario, solve=solve))
+    goals = builder.AddNamedSystem("goals", GoalSource(scenario.goals))
+    builder.Connect(goals.get_goals_output_port(), planner.get_goals_input_port())
     builder.Connect(stack.estimator.get_measured_state_output_port(),
                     planner.get_measured_state_input_port())
     builder.Connect(planner.get_plan_output_port(), stack.interpolator.get_plan_input_port())
@@ -51,4 +57,4 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
         AddDefaultVisualization(builder, meshcat)
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
-    return DualArm(diagram, station, stack, planner, clearance)
+    return DualArm(diagram, station, stack, planner, clearance, goals)

@@ -21,7 +21,7 @@ from pydrake.solvers import MathematicalProgram
 from dualarm_mpc import program
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import Model, Rect, State, reachability, replay
+from dualarm_mpc.mld import Model, Rect, State, in_goal, reachability, replay
 from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import (
@@ -78,7 +78,7 @@ def _resolver(spec: Specification, x: program.HorizonVariables, state: State, sc
                 return Literal(int(x.theta[k, local[j]]), geometric=True)
             if 1 <= j <= len(goals):
                 return Literal(-1, geometric=True,
-                               constant=bool(goals[j - 1].contains(state.object_pos[j - 1])))
+                               constant=bool(in_goal(state.object_pos[j - 1], goals[j - 1])))
         raise EncodingError(
             f"unknown atom {atom}: the atoms are eta[i,j] (hand i = 1 right, 2 left, grabs "
             f"object j) and theta[j] (object j in its goal), j = 1..{len(goals)}"

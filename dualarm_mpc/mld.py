@@ -31,7 +31,15 @@ from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.scenario import Scenario
 
 N_HANDS = 2
-POSITION_TOL = 1e-6  # m: "inside a box" on a replayed trace (solver round-off, not physics)
+# The vocabulary of goals and delivery, one tolerance per notion (docs/model.md, "What
+# "delivered" means"): an object is *in_goal* when its centre lies in its goal box to
+# POSITION_TOL, *at_rest* when its speed is at most a rest tolerance, *delivered* when both.
+# The model's objects stop exactly (a one-step slide, then v = 0; docs/model.md, "The one-step
+# slide"), so the model's rest tolerance is round-off; the plant's objects never stop exactly,
+# so the robot's is a speed.
+POSITION_TOL = 1e-6  # m: "inside a box" (solver round-off, not physics), model and robot alike
+REST_TOL = 1e-6  # m/s: at rest in the model (planner, verifier, sequential transportation)
+REST_SPEED = 0.01  # m/s: at rest on the robot (MPC planner, closed loop, summary, benches)
 
 
 @dataclass(frozen=True)
@@ -57,6 +65,24 @@ class Rect:
 
     def bounds(self) -> list[float]:
         return [float(self.lo[0]), float(self.hi[0]), float(self.lo[1]), float(self.hi[1])]
+
+
+def in_goal(pos: np.ndarray, box: list[float] | Rect, tol: float = POSITION_TOL) -> np.ndarray:
+    """Whether each position of ``pos`` (…, 2) lies in the goal ``box`` ([xmin, xmax, ymin,
+    ymax] or a :class:`Rect`), to ``tol``."""
+    return (box if isinstance(box, Rect) else Rect.of(box)).contains(pos, tol)
+
+
+def at_rest(vel: np.ndarray, speed: float = REST_TOL) -> np.ndarray:
+    """Whether each velocity of ``vel`` (…, 2 or 3) is at rest: its norm at most ``speed``
+    (``REST_TOL`` in the model, ``REST_SPEED`` on the robot)."""
+    return np.linalg.norm(np.asarray(vel, float), axis=-1) <= speed
+
+
+def delivered(pos: np.ndarray, vel: np.ndarray, box: list[float] | Rect,
+              speed: float = REST_TOL) -> np.ndarray:
+    """At rest (to ``speed``) in its goal ``box``: what "delivered" means everywhere."""
+    return in_goal(pos, box) & at_rest(vel, speed)
 
 
 @dataclass(frozen=True)

@@ -7,6 +7,7 @@ Array conventions (index order is the paper's): arm ``i`` = 0 is arm 1 (right), 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -178,3 +179,34 @@ class TimedTrajectory:
     t0: float
     dt: float
     trajectory: Trajectory
+
+
+_EPS = 1e-9  # time slack so that t = t0 + k·dt computed in floating point lands in step k
+
+
+def empty_plan(n_objects: int, hand_pos: np.ndarray | None = None) -> TimedTrajectory:
+    """A plan of one step (K = 0): both hands at rest at ``hand_pos`` (2×2), nothing held."""
+    hand = np.zeros((1, 2, 2)) if hand_pos is None else np.asarray(hand_pos, float).reshape(1, 2, 2)
+    trajectory = Trajectory(
+        hand_pos=hand,
+        hand_vel=np.zeros((1, 2, 2)),
+        force=np.zeros((0, 2, 2)),
+        object_pos=np.zeros((1, n_objects, 2)),
+        object_vel=np.zeros((1, n_objects, 2)),
+        grasp=np.zeros((1, 2, n_objects), dtype=int),
+    )
+    return TimedTrajectory(t0=0.0, dt=1.0, trajectory=trajectory)
+
+
+def step_at(plan: TimedTrajectory, t: float) -> tuple[int, float]:
+    """(k, s): the step index k = floor((t − t0)/dt) (any integer) and s ∈ [0, 1) within it."""
+    tau = (t - plan.t0) / plan.dt
+    k = math.floor(tau + _EPS)
+    return k, min(max(tau - k, 0.0), 1.0)
+
+
+def sample_grasp(plan: TimedTrajectory, t: float) -> np.ndarray:
+    """The grasp command η at time t, flattened row-major ([i][j], length 2N)."""
+    grasp = plan.trajectory.grasp
+    k, _ = step_at(plan, t)
+    return np.asarray(grasp[min(max(k, 0), len(grasp) - 1)], dtype=float).reshape(-1)

@@ -65,7 +65,7 @@ from dualarm_mpc.ltl import (
     atoms,
     conj,
 )
-from dualarm_mpc.mld import N_HANDS, POSITION_TOL, Rect, State, replay, violations
+from dualarm_mpc.mld import N_HANDS, Rect, State, in_goal, replay, violations
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification
@@ -361,8 +361,8 @@ class StepSearch:
             (j,) = atom.index
             n = self._local.get(j - 1)
             if n is None:
-                return bool(goals[j - 1].contains(self.state.object_pos[j - 1]))
-            return bool(self._model.goals[n].contains(traj.object_pos[k, n], POSITION_TOL))
+                return bool(in_goal(self.state.object_pos[j - 1], goals[j - 1]))
+            return bool(in_goal(traj.object_pos[k, n], self._model.goals[n]))
 
         return value
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dualarm_mpc.horizon import StepResult, solve_step, solver_options
-from dualarm_mpc.mld import POSITION_TOL, Model, Rect, State, reachability
+from dualarm_mpc.mld import REST_TOL, Model, Rect, State, delivered, in_goal, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
@@ -25,7 +25,6 @@ from dualarm_mpc.spec import Specification, rule_formulas, specification
 
 log = logging.getLogger(__name__)
 
-REST_TOL = 1e-6  # m/s: "at rest" in the model's own units
 CHECK_CAP_AFTER = 4  # horizons without a plan before the largest one is checked (plan_step)
 CAP_CHECK_TIME_S = 3.0  # the whole of that check
 
@@ -94,13 +93,10 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
 
 
 def at_rest_in_goal(scenario: Scenario, state: State) -> np.ndarray:
-    """(N,) whether each object rests inside its goal."""
-    inside = np.array([
-        Rect.of(scenario.goals[o.goal]).contains(state.object_pos[j], 1e-9)
-        for j, o in enumerate(scenario.objects)
-    ])
-    still = np.abs(state.object_vel).max(axis=1) <= REST_TOL
-    return inside & still
+    """(N,) whether each object is delivered in the model: at rest (``REST_TOL``) in its goal."""
+    return np.array([bool(delivered(state.object_pos[j], state.object_vel[j],
+                                    scenario.goals[o.goal], REST_TOL))
+                     for j, o in enumerate(scenario.objects)], dtype=bool)
 
 
 def plan_step(scenario: Scenario, state: State, spec: Specification,
@@ -233,8 +229,8 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         now = at_rest_in_goal(scenario, state)
         newly = [j for j in objects if now[j] and not done[j]]
         for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
-            goal = Rect.of(scenario.goals[scenario.objects[j].goal])
-            inside = np.flatnonzero(goal.contains(step.object_pos[:, j], POSITION_TOL))
+            goal = scenario.goals[scenario.objects[j].goal]
+            inside = np.flatnonzero(in_goal(step.object_pos[:, j], goal))
             delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
         done = done | now
         seg = Segment(objects=objects, delivered=newly, horizon=res.horizon,

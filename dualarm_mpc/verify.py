@@ -14,7 +14,17 @@ import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import POSITION_TOL, Model, Rect, State, replay, violations
+from dualarm_mpc.mld import (
+    POSITION_TOL,
+    REST_TOL,
+    Model,
+    Rect,
+    State,
+    delivered,
+    in_goal,
+    replay,
+    violations,
+)
 from dualarm_mpc.plan import Plan, Trajectory
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.spec import rule_formulas, specification
@@ -37,7 +47,7 @@ def atom_trace(scenario: Scenario, traj: Trajectory, start: int, stop: int):
             return bool(traj.grasp[step, i - 1, j - 1])
         if atom.name == "theta":
             (j,) = atom.index
-            return bool(goals[j - 1].contains(traj.object_pos[step, j - 1], POSITION_TOL))
+            return bool(in_goal(traj.object_pos[step, j - 1], goals[j - 1]))
         raise KeyError(f"no value for atom {atom} in a plan's trace")
 
     return value
@@ -70,7 +80,6 @@ def verify(scenario: Scenario, plan: Plan) -> Verification:
         problems.append(f"the steps' horizons add up to {start}, the trajectory has {traj.steps}")
     end = State.last(replayed)
     for j, o in enumerate([] if plan.partial else scenario.objects):
-        inside = Rect.of(scenario.goals[o.goal]).contains(end.object_pos[j], POSITION_TOL)
-        if not inside or np.abs(end.object_vel[j]).max() > POSITION_TOL:
+        if not delivered(end.object_pos[j], end.object_vel[j], scenario.goals[o.goal], REST_TOL):
             problems.append(f"{o.name} does not end at rest in goal {o.goal}")
     return Verification(not problems, problems)

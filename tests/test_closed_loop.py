@@ -28,17 +28,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-from pydrake.systems.framework import EventStatus
 
-import dualarm_mpc.closed_loop as simulate_module
-import dualarm_mpc.systems.mpc_planner as planner_module
 from dualarm_mpc.cli import main
 from dualarm_mpc.closed_loop import Summary, on_robot, simulate
+from dualarm_mpc.mld import REST_SPEED  # m/s: "at rest" on the robot, as the summary counts it
 from dualarm_mpc.recording import is_self_contained
 from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario
+from dualarm_mpc.sequential import solve_horizon
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
-REST_SPEED = 0.01  # m/s: "at rest", as the summary and the planner count it
 # Statuses a replan may record: the solver's (dualarm_mpc.solver.Status), "done" once every
 # object rests in (or slides into) its goal, "stuck" when the objects left can provably no longer
 # reach their goals, "no_horizon" when no horizon was tried, "searching" / "over_budget" when the
@@ -100,39 +98,20 @@ class Trace:
 
 
 def run(scenario: Scenario, duration: float | None = None, **kwargs) -> tuple[Summary, Trace]:
-    """``simulate(scenario)``, with the hands' measured positions traced by a Simulator monitor.
-
-    ``simulate`` builds its own Diagram and Simulator, so the monitor is attached by wrapping the
-    module's ``MakeDiagram`` and ``Simulator`` for the duration of this call (nothing else of the
-    run changes: the monitor only evaluates the StateEstimator's output)."""
+    """``simulate(scenario)``, with the hands' measured positions traced after every simulator
+    step (``simulate``'s ``observe``: it only evaluates the StateEstimator's output)."""
     trace = Trace()
-    built = {}
-    make_diagram, simulator_class = simulate_module.MakeDiagram, simulate_module.Simulator
 
-    def traced_make_diagram(*args, **kw):
-        built["dual"] = make_diagram(*args, **kw)
-        return built["dual"]
+    def observe(dual, root_context) -> None:
+        estimator = dual.stack.estimator
+        measured = estimator.get_measured_state_output_port().Eval(
+            estimator.GetMyContextFromRoot(root_context))
+        trace.t.append(root_context.get_time())
+        trace.hand_pos.append(
+            split_measured_state(measured, dual.station.n_objects)["hand_pos"].copy())
 
-    def traced_simulator(diagram):
-        simulator = simulator_class(diagram)
-        dual = built["dual"]
-        estimator, n = dual.stack.estimator, dual.station.n_objects
-        port = estimator.get_measured_state_output_port()
-
-        def monitor(root_context):
-            measured = port.Eval(estimator.GetMyContextFromRoot(root_context))
-            trace.t.append(root_context.get_time())
-            trace.hand_pos.append(split_measured_state(measured, n)["hand_pos"].copy())
-            return EventStatus.Succeeded()
-
-        simulator.set_monitor(monitor)
-        return simulator
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(simulate_module, "MakeDiagram", traced_make_diagram)
-        mp.setattr(simulate_module, "Simulator", traced_simulator)
-        summary = simulate(scenario, duration, **kwargs)
-    assert trace.t, "the monitor never ran: simulate() no longer uses MakeDiagram/Simulator"
+    summary = simulate(scenario, duration, observe=observe, **kwargs)
+    assert trace.t, "observe was never called"
     return summary, trace
 
 
@@ -374,21 +353,20 @@ def test_a_search_longer_than_the_budget_goes_on_while_the_robot_waits() -> None
     assert_replans_recorded(summary, scenario)
 
 
-def test_failing_replans_are_recorded_and_the_previous_plan_still_delivers(monkeypatch) -> None:
-    """Solver errors injected into three consecutive solves mid-run: each replan records
-    "error" with the exception and keeps the plan in force; the task still completes."""
-    real_solve_horizon = planner_module.solve_horizon
+def test_failing_replans_are_recorded_and_the_previous_plan_still_delivers() -> None:
+    """Solver errors injected into three consecutive solves mid-run (through ``simulate``'s
+    ``solve``): each replan records "error" with the exception and keeps the plan in force; the
+    task still completes."""
     calls = {"n": 0}
 
     def flaky_solve_horizon(*args, **kwargs):
         calls["n"] += 1
         if 3 <= calls["n"] <= 5:
             raise RuntimeError(f"injected failure {calls['n']}")
-        return real_solve_horizon(*args, **kwargs)
+        return solve_horizon(*args, **kwargs)
 
-    monkeypatch.setattr(planner_module, "solve_horizon", flaky_solve_horizon)
     scenario = scene("flaky", [ObjectSpec("a", [0.1, 0.1], "red")])
-    summary = simulate(scenario)
+    summary = simulate(scenario, solve=flaky_solve_horizon)
     errors = [r for r in summary.replans if r["status"] == "error"]
     assert len(errors) == 3, summary.replans
     assert all("RuntimeError: injected failure" in r["note"] for r in errors)

@@ -1,0 +1,399 @@
+"""The MPC core: one replan, from the measured state, the goals and the previous plan to a new
+plan and its record — plain Python, no Drake system (``systems/mpc_planner.py`` wraps it).
+
+Each Δt the closed loop calls :meth:`Replanner.step` and re-solves the current sequential step
+from the measured state (Algorithm 1, one step at a time):
+
+* the grasp in force for the next Δt is the one the previous plan committed to, so the new plan's
+  η(0) is that (a decision takes effect one step after it is made, as in the model's k = 0);
+* an object is *delivered* when it is at rest on the robot (``mld.REST_SPEED``) in its goal,
+  unheld; the step ends when m_o of its objects are delivered, and the next step selects new
+  objects;
+* within a step every replan takes the shortest feasible horizon from the measured state (so the
+  plan cannot idle and the step arrives), MIP-started from the previous plan's grasps shifted by
+  one step;
+* real time: a replan holds the caller for ``solver.replan_budget_s`` of wall time at most
+  (0.4 Δt by default). The search runs on a worker thread; past the budget the robot follows the
+  plan in force. While the robot waits at rest with no plan left (the first replan of a step),
+  the search goes on over the next periods and its plan starts when it ends ("searching"); while
+  the robot moves, the late search is stopped ("over_budget") and the next period plans afresh;
+* a solver time-out, an infeasible horizon or any error keeps the previous plan; every replan
+  returns its record (:class:`Replan`: wall time, status, cost). Nothing raises.
+
+The state (:class:`MpcState`) is a frozen value the caller keeps (the LeafSystem keeps it in its
+Context); the replan log is the caller's to keep. A search carried over to the next periods is a
+handle in that state (:class:`Search`); the worker thread is the :class:`Replanner`'s, made once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass
+
+import numpy as np
+
+from dualarm_mpc.horizon import StepResult, solver_options
+from dualarm_mpc.mld import REST_SPEED, Model, Rect, State, at_rest, in_goal, reachability
+from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp
+from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.sequential import embed_step, predict_horizon, select_objects, solve_horizon
+from dualarm_mpc.solver import Interrupt, SolveOptions, Status
+from dualarm_mpc.spec import Specification, rule_formulas, specification
+
+log = logging.getLogger(__name__)
+
+STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is measurement noise
+SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the plan's own state
+SNAP_VELOCITY = 0.05  # m/s
+GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close to the grasp box
+# The share of a control period a replan may hold the simulation for: the plant's own simulation
+# of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
+BUDGET_SHARE = 0.4
+SEARCHING = "over budget: the robot waits at rest while the search goes on"
+
+# solve(scenario, state, spec, T, options, start=...) -> StepResult: one horizon's solve.
+Solve = Callable[..., StepResult]
+Goals = dict[str, list[float]]  # goal name → box [xmin, xmax, ymin, ymax]
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What the robot measures (the StateEstimator's vector, split): hands (2, 2), objects
+    (N, 2), and what the gripper holds now (2, N), planar."""
+
+    hand_pos: np.ndarray
+    hand_vel: np.ndarray
+    object_pos: np.ndarray
+    object_vel: np.ndarray
+    grasp: np.ndarray
+
+
+@dataclass(frozen=True)
+class Replan:
+    """One replan, as recorded."""
+
+    t: float
+    wall_s: float
+    status: str
+    cost: float | None
+    horizon: int | None
+    objects: tuple[int, ...]
+    delivered: int  # objects resting in their goals when it ran
+    note: str = ""
+
+
+class Search:
+    """A search carried over to the next periods: the job and its running future. A handle:
+    copies of the state share it (a running thread is not copied)."""
+
+    def __init__(self, job: _Job, future: Future) -> None:
+        self.job, self.future = job, future
+
+    def __copy__(self) -> Search:
+        return self
+
+    def __deepcopy__(self, memo) -> Search:
+        return self
+
+
+@dataclass(frozen=True)
+class MpcState:
+    """The planner's state: the plan in force and the sequential step it serves."""
+
+    plan: TimedTrajectory
+    step_objects: tuple[int, ...] = ()
+    step_target: int = 0  # delivered count at which the current step is done
+    horizon_end: float = 0.0  # sim time at the end of the current plan's horizon
+    # The last plan's step objects and their η, (T+1, 2, n): the next replan's MIP start.
+    grasp_start: tuple[tuple[int, ...], np.ndarray] | None = None
+    delivered_time: tuple[float | None, ...] = ()
+    search: Search | None = None  # a search carried over (the robot waits at rest meanwhile)
+
+
+class Replanner:
+    """The receding-horizon planner of the closed loop, one :meth:`step` per Δt.
+
+    ``solve`` is one horizon's solve (``sequential.solve_horizon`` by default; a test may pass
+    one that fails). ``time_limit_s`` overrides the scenario's per-solve limit."""
+
+    def __init__(self, scenario: Scenario, time_limit_s: float | None = None,
+                 solve: Solve | None = None) -> None:
+        self._scenario = scenario
+        self._options = solver_options(scenario, time_limit_s)
+        self._solve_horizon = solve_horizon if solve is None else solve
+        # Wall time a replan may hold the simulation: one control period at most.
+        budget = scenario.solver.replan_budget_s
+        self._budget_s = BUDGET_SHARE * scenario.dt if budget is None else budget
+        self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
+        self._rules = rule_formulas(scenario)
+
+    def initial_state(self) -> MpcState:
+        sc = self._scenario
+        return MpcState(plan=empty_plan(sc.n_objects, np.array(sc.hand_start)),
+                        delivered_time=(None,) * sc.n_objects)
+
+    def close(self, state: MpcState | None = None) -> None:
+        """Stop the search ``state`` carries over, if any, and the worker (the run is over)."""
+        if state is not None:
+            _abandon(state)
+        self._worker.shutdown(wait=False, cancel_futures=True)
+
+    def step(self, t: float, state: MpcState, measured: Measured,
+             goals: Goals) -> tuple[MpcState, Replan]:
+        """The replan at time ``t``: the new state (its plan starts at ``t``) and the record."""
+        wall0 = time.perf_counter()
+        goals = {k: list(v) for k, v in goals.items()}
+        try:
+            return self._replan(t, state, measured, goals, wall0)
+        except Exception as err:  # a replan must never stop the simulation
+            log.exception("replan at t=%.2f failed", t)
+            _abandon(state)
+            return _record(dataclasses.replace(state, search=None), t, wall0, "error",
+                           note=f"{type(err).__name__}: {err}")
+
+    # -- the replan ---------------------------------------------------------------------------
+
+    def _replan(self, t: float, s: MpcState, measured: Measured, goals: Goals,
+                wall0: float) -> tuple[MpcState, Replan]:
+        """Wait at most the budget for a plan; past it, follow the plan in force and let the
+        search go on in the background while the robot waits at rest (carried over to the next
+        periods), or stop it while the robot moves (its start state is gone by then)."""
+        if s.search is not None:
+            job, future = s.search.job, s.search.future
+            if job.scenario.goals != goals or not self._still(job, measured):
+                _abandon(s)  # the world moved on: plan afresh below
+                s = dataclasses.replace(s, search=None)
+            elif not _wait(future, self._budget_s):
+                return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
+            else:
+                s = dataclasses.replace(s, search=None)
+                return self._adopt(s, job, future.result(), t, wall0)
+        prepared = self._prepare(t, s, measured, goals, wall0)
+        if not isinstance(prepared, _Job):
+            return prepared
+        job = prepared
+        future = self._worker.submit(self._solve, job)
+        if _wait(future, self._budget_s):
+            return self._adopt(s, job, future.result(), t, wall0)
+        if job.idle:
+            return _record(dataclasses.replace(s, search=Search(job, future)), t, wall0,
+                           "searching", note=SEARCHING, **job.changes)
+        job.options.interrupt.set()
+        return _record(s, t, wall0, "over_budget", note="kept the previous plan", **job.changes)
+
+    def _prepare(self, t: float, s: MpcState, measured: Measured, goals: Goals, wall0: float):
+        """What the replan at ``t`` must solve (a :class:`_Job`), or the new state and record at
+        once when nothing is left to solve (every object delivered, or the rest out of reach)."""
+        sc = dataclasses.replace(self._scenario, goals=goals)
+        state = self._committed_state(t, s, measured)
+        resting = _resting(sc, state, exhausted=t >= s.horizon_end - 1e-9)
+        delivered_time = tuple((t if d is None else d) if r else None
+                               for d, r in zip(s.delivered_time, resting, strict=True))
+        # A thrown object still sliding into its goal needs nothing more from the robot.
+        done = resting | _arriving(sc, state)
+        n_done = int(np.sum(done))
+        lost = _lost(sc, state) & ~done
+        remaining = [j for j in range(sc.n_objects) if not done[j] and not lost[j]]
+        if not remaining and lost.any():
+            names = ", ".join(sc.objects[j].name for j in np.flatnonzero(lost))
+            return _record(s, t, wall0, "stuck", plan=_hold(t, sc.dt, state), step_objects=(),
+                           delivered_time=delivered_time,
+                           note=f"{names} can no longer reach the goal")
+        if not remaining:
+            return _record(s, t, wall0, "done", plan=_hold(t, sc.dt, state), step_objects=(),
+                           delivered_time=delivered_time)
+        new_step = (not s.step_objects or n_done >= s.step_target
+                    or not set(s.step_objects) & set(remaining))
+        if new_step:
+            objects = select_objects(sc, state, remaining)
+            target = n_done + min(sc.m_o, len(objects))
+            grasp_start = None
+        else:
+            # Delivered ones leave the step (a hand still holding one lets go): else they would
+            # satisfy φ_task again and the step would never move on.
+            objects = [j for j in s.step_objects if j in remaining]
+            target = s.step_target
+            grasp_start = s.grasp_start
+        spec = specification(sc, objects, rules=self._rules)
+        spec = dataclasses.replace(spec, m_o=max(1, min(spec.m_o, target - n_done)))
+        start = _shifted_start(*grasp_start, objects) if grasp_start is not None else None
+        # At rest with no plan left: a search that outlasts the budget still applies when it
+        # ends, so it may go on (from exactly at rest: the controller absorbs the noise).
+        idle = bool(t >= s.horizon_end - 1e-9
+                    and np.abs(state.hand_vel).max(initial=0) < SNAP_VELOCITY
+                    and np.abs(state.object_vel).max(initial=0) < SNAP_VELOCITY)
+        if idle:
+            state = dataclasses.replace(state, hand_vel=np.zeros_like(state.hand_vel),
+                                        object_vel=np.zeros_like(state.object_vel))
+        changes = dict(delivered_time=delivered_time, step_objects=tuple(objects),
+                       step_target=target)
+        options = dataclasses.replace(self._options, interrupt=Interrupt())
+        return _Job(sc, state, spec, start, options, idle, changes)
+
+    def _solve(self, job: _Job) -> StepResult | None:
+        """The shortest feasible horizon (with cost (17) alone, a longer horizon lets the plan
+        idle first, and a receding horizon would then never arrive); runs on the worker."""
+        wall0 = time.perf_counter()
+        res = None
+        sc, state, spec = job.scenario, job.state, job.spec
+        for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
+            res = self._solve_horizon(sc, state, spec, T, job.options, start=job.start)
+            if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
+                break
+            if time.perf_counter() - wall0 > job.options.time_limit_s:
+                break
+        return res
+
+    def _adopt(self, s: MpcState, job: _Job, res: StepResult | None, t: float,
+               wall0: float) -> tuple[MpcState, Replan]:
+        """The plan of a finished search, starting now (a search carried over started from a
+        state the robot still holds at rest)."""
+        sc = job.scenario
+        if res is None or not res.status.has_solution:
+            status = res.status.value if res else "no_horizon"
+            return _record(s, t, wall0, status, res, note="kept the previous plan", **job.changes)
+        objects = list(job.spec.objects)
+        traj = embed_step(sc, job.state, objects, res.trajectory)
+        plan = TimedTrajectory(t, sc.dt, traj)
+        return _record(s, t, wall0, res.status.value, res, plan=plan,
+                       horizon_end=t + res.horizon * sc.dt,
+                       grasp_start=(tuple(objects), res.trajectory.grasp), **job.changes)
+
+    def _still(self, job: _Job, m: Measured) -> bool:
+        """Whether the robot and the objects still rest where the search carried over started."""
+        pos = np.concatenate([m.hand_pos, m.object_pos])
+        was = np.concatenate([job.state.hand_pos, job.state.object_pos])
+        speed = np.abs(np.concatenate([m.hand_vel, m.object_vel])).max(initial=0)
+        return bool(np.abs(pos - was).max(initial=0) < SNAP_POSITION and speed < SNAP_VELOCITY)
+
+    def _committed_state(self, t: float, s: MpcState, m: Measured) -> State:
+        """The state a replan starts from: the measured one, with the grasp the previous plan
+        committed to for [t, t + Δt).
+
+        Where a hand or an object is within ``SNAP_POSITION`` / ``SNAP_VELOCITY`` of where the
+        previous plan put it, the plan's own (nominal) value is used: the controller absorbs
+        millimetre tracking errors, and the shifted plan stays feasible (otherwise tight plans —
+        throws at full speed from the edge of the hand range — turn infeasible by a hair at every
+        replan and the robot dithers). Larger deviations (a knock, a short throw, a failed grasp)
+        are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest."""
+        sc = self._scenario
+        ws = Rect.of(sc.workspace)
+        hand_pos = np.clip(m.hand_pos, ws.lo, ws.hi)
+        hand_vel = np.clip(m.hand_vel, -sc.max_speed, sc.max_speed)
+        obj_pos, obj_vel = np.array(m.object_pos, float), np.array(m.object_vel, float)
+        obj_vel[np.linalg.norm(obj_vel, axis=1) < STILL_SPEED] = 0.0
+        k = int(np.floor((t - s.plan.t0) / s.plan.dt + 1e-9))
+        traj = s.plan.trajectory
+        if 0 <= k < len(traj.hand_pos) and s.step_objects:
+            # Hands on position alone: at a release the interpolator deliberately keeps the
+            # hand at the previous step's speed (the throw), so its velocity differs by design.
+            close = np.abs(hand_pos - traj.hand_pos[k]).max(axis=1) < SNAP_POSITION
+            hand_pos[close], hand_vel[close] = traj.hand_pos[k][close], traj.hand_vel[k][close]
+            close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < SNAP_POSITION)
+                     & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < SNAP_VELOCITY))
+            obj_pos[close], obj_vel[close] = traj.object_pos[k][close], traj.object_vel[k][close]
+        if t < s.horizon_end - 1e-9:
+            grasp = sample_grasp(s.plan, t).reshape(2, sc.n_objects).round().astype(int)
+        else:  # the plan is over: what the gripper holds
+            grasp = np.asarray(m.grasp).round().astype(int)
+        # A grasp of an object no longer at the hand (knocked away, or never caught) is void.
+        half = np.array([o.grasp_half_size for o in sc.objects])
+        reach = np.abs(m.hand_pos[:, None] - obj_pos[None]).max(axis=2)  # (2, N)
+        grasp[reach > half[None] + GRASP_SLACK] = 0
+        for i, j in zip(*np.nonzero(grasp), strict=True):
+            obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
+        return State(hand_pos, hand_vel, obj_pos, obj_vel, grasp)
+
+
+def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | None = None,
+            note: str = "", **changes) -> tuple[MpcState, Replan]:
+    new = dataclasses.replace(s, **changes)
+    r = Replan(t=t, wall_s=time.perf_counter() - wall0, status=status,
+               cost=None if res is None or res.trajectory is None else res.cost,
+               horizon=None if res is None else res.horizon, objects=new.step_objects,
+               delivered=sum(d is not None for d in new.delivered_time), note=note)
+    return new, r
+
+
+def _abandon(s: MpcState) -> None:
+    if s.search is not None:
+        s.search.job.options.interrupt.set()
+
+
+def _lost(sc: Scenario, state: State) -> np.ndarray:
+    """Objects that reachability proves can never reach their goals (e.g. knocked or thrown
+    short beyond the hands' reach): left out so that the others still get delivered."""
+    model = Model.from_scenario(sc)
+    reach = reachability(model, state, sc.solver.max_horizon)
+    return reach.first_goal > sc.solver.max_horizon
+
+
+def _arriving(sc: Scenario, state: State) -> np.ndarray:
+    """Unheld objects whose one-step slide ends in their goals (docs/model.md, "The one-step
+    slide"; on the robot the table's drag reproduces it)."""
+    landing = state.object_pos + sc.dt * state.object_vel
+    inside = np.array([in_goal(landing[j], sc.goals[o.goal]) for j, o in enumerate(sc.objects)])
+    moving = np.linalg.norm(state.object_vel, axis=1) > 0
+    return inside & moving & ~state.grasp.any(axis=0)
+
+
+def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
+    """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
+    counts once its plan is over (the hand stopped there and lets go when it moves on)."""
+    inside = np.array([in_goal(state.object_pos[j], sc.goals[o.goal])
+                       for j, o in enumerate(sc.objects)])
+    return inside & at_rest(state.object_vel, REST_SPEED) & (exhausted | ~state.grasp.any(axis=0))
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One replan's search: what to solve, from which state, and how to stop it."""
+
+    scenario: Scenario  # with the goals the replan saw
+    state: State
+    spec: Specification
+    start: Callable | None  # MIP start for the monolithic MILP
+    options: SolveOptions  # with the Interrupt that stops it
+    idle: bool  # the robot rests with no plan left: a late result still applies
+    changes: dict  # the bookkeeping to record with the replan
+
+
+def _wait(future: Future, timeout_s: float) -> bool:
+    try:
+        future.result(timeout=timeout_s)
+    except FutureTimeout:
+        return False
+    return True
+
+
+def _hold(t: float, dt: float, state: State) -> TimedTrajectory:
+    """A plan of one step: both hands at rest where they are, nothing held."""
+    plan = empty_plan(len(state.object_pos), state.hand_pos)
+    traj = dataclasses.replace(plan.trajectory, object_pos=state.object_pos[None].copy())
+    return TimedTrajectory(t, dt, traj)
+
+
+def _shifted_start(previous: tuple[int, ...], grasp: np.ndarray, objects: list[int]):
+    """A MIP start from the previous plan's grasps, one step on (binaries only; HiGHS completes
+    the rest), for the step's objects that were in the previous plan."""
+    where = {j: n for n, j in enumerate(previous)}
+
+    def start(x):
+        index, value = [], []
+        K = len(grasp) - 1
+        for n_new, j in enumerate(objects):
+            if j not in where:
+                continue
+            for k in range(1, x.horizon + 1):
+                index.append(x.eta[k, :, n_new])
+                value.append(grasp[min(k + 1, K), :, where[j]])
+        if not index:
+            return np.zeros(0, int), np.zeros(0)
+        return np.concatenate(index), np.concatenate(value).astype(float)
+
+    return start

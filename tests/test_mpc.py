@@ -1,0 +1,136 @@
+"""The MPC core (``dualarm_mpc.mpc``) on its own, without a Diagram: one replan from a measured
+state and the goals to a plan and its record; nothing kept but the state it returns."""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+
+import numpy as np
+
+from dualarm_mpc.mld import REST_SPEED, in_goal
+from dualarm_mpc.mpc import SEARCHING, Measured, MpcState, Replanner
+from dualarm_mpc.scenario import ObjectSpec, Scenario, apply_overrides
+from dualarm_mpc.sequential import solve_horizon
+
+GOALS = {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]}
+
+
+def scenario(**overrides) -> Scenario:
+    s = Scenario(name="core", objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1, m_o=1,
+                 n_o=1, workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2, max_force=0.1,
+                 goals={k: list(v) for k, v in GOALS.items()})
+    return apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03,
+                               "solver": {"time_limit_s": 10, "replan_budget_s": 60},
+                               **overrides})
+
+
+def at_rest(sc: Scenario, object_pos=None) -> Measured:
+    """The robot at its start, everything at rest, the gripper empty."""
+    pos = np.array([o.position for o in sc.objects] if object_pos is None else object_pos, float)
+    n = len(pos)
+    return Measured(hand_pos=np.array(sc.hand_start, float), hand_vel=np.zeros((2, 2)),
+                    object_pos=pos, object_vel=np.zeros((n, 2)), grasp=np.zeros((2, n)))
+
+
+def test_a_replan_from_rest_returns_a_plan_that_starts_now_and_its_record() -> None:
+    sc = scenario()
+    core = Replanner(sc)
+    s0 = core.initial_state()
+    s1, r = core.step(0.0, s0, at_rest(sc), sc.goals)
+    core.close(s1)
+    assert r.status in ("optimal", "feasible") and r.t == 0.0 and r.wall_s >= 0
+    assert r.objects == (0,) and r.delivered == 0 and r.horizon is not None
+    assert s1.plan.t0 == 0.0 and s1.plan.trajectory.steps == r.horizon
+    assert s1.horizon_end == r.horizon * sc.dt and s1.step_objects == (0,)
+    assert s1.search is None and s0.step_objects == ()  # the input state is not changed
+    # the plan ends with the object in its goal
+    end = s1.plan.trajectory.object_pos[-1, 0]
+    assert in_goal(end, GOALS["red"])
+
+
+def test_an_object_resting_in_its_goal_is_delivered_and_the_robot_holds_still() -> None:
+    sc = scenario()
+    core = Replanner(sc)
+    slow = at_rest(sc, [[0.4, 0.8]])
+    slow = dataclasses.replace(slow, object_vel=np.array([[0.5 * REST_SPEED, 0.0]]))
+    s, r = core.step(3.0, core.initial_state(), slow, sc.goals)
+    core.close(s)
+    assert r.status == "done" and r.delivered == 1 and s.delivered_time == (3.0,)
+    assert s.plan.t0 == 3.0 and not s.plan.trajectory.grasp.any()
+
+
+def test_the_goals_come_from_the_caller() -> None:
+    """A goal moved onto the object: it is delivered where it rests, with no solve."""
+    sc = scenario()
+    core = Replanner(sc)
+    moved = {**sc.goals, "red": [0.0, 0.2, 0.0, 0.2]}
+    s, r = core.step(0.0, core.initial_state(), at_rest(sc), moved)
+    core.close(s)
+    assert r.status == "done" and s.delivered_time == (0.0,)
+
+
+def test_a_failing_solve_is_recorded_and_keeps_the_plan_in_force() -> None:
+    def failing(*args, **kwargs):
+        raise RuntimeError("injected")
+
+    sc = scenario()
+    core = Replanner(sc, solve=failing)
+    s0 = core.initial_state()
+    s1, r = core.step(0.0, s0, at_rest(sc), sc.goals)
+    core.close(s1)
+    assert r.status == "error" and r.note == "RuntimeError: injected"
+    assert s1.plan is s0.plan
+
+
+def test_a_search_past_the_budget_goes_on_at_rest_and_its_plan_applies_when_it_ends() -> None:
+    """The solve is held until released (no clock involved): the first replan records
+    "searching" and carries the search in its state; the next one adopts its plan."""
+    release = threading.Event()
+
+    def held(*args, **kwargs):
+        release.wait()
+        return solve_horizon(*args, **kwargs)
+
+    sc = scenario(solver={"time_limit_s": 10, "replan_budget_s": 0.001})
+    core = Replanner(sc, solve=held)
+    s1, r1 = core.step(0.0, core.initial_state(), at_rest(sc), sc.goals)
+    assert r1.status == "searching" and r1.note == SEARCHING and s1.search is not None
+    release.set()
+    s1.search.future.result()  # the search has ended: the next replan adopts it
+    s2, r2 = core.step(1.0, s1, at_rest(sc), sc.goals)
+    core.close(s2)
+    assert r2.status in ("optimal", "feasible") and s2.search is None
+    assert s2.plan.t0 == 1.0 and s2.step_objects == (0,)
+
+
+def test_a_search_carried_over_is_abandoned_when_a_goal_moves() -> None:
+    release = threading.Event()
+    calls = []
+
+    def held(*args, **kwargs):
+        calls.append(args[0].goals["red"])
+        release.wait()
+        return solve_horizon(*args, **kwargs)
+
+    sc = scenario(solver={"time_limit_s": 10, "replan_budget_s": 0.001})
+    core = Replanner(sc, solve=held)
+    s1, _ = core.step(0.0, core.initial_state(), at_rest(sc), sc.goals)
+    first = s1.search
+    moved = {**sc.goals, "red": [0.2, 0.55, 0.6, 0.9]}
+    s2, r2 = core.step(1.0, s1, at_rest(sc), moved)
+    assert first.job.options.interrupt.is_set()  # the old search was told to stop
+    assert r2.status == "searching" and s2.search is not first
+    release.set()
+    core.close(s2)
+    assert isinstance(s2, MpcState)
+
+
+def test_the_core_needs_no_drake_system() -> None:
+    import subprocess
+    import sys
+
+    code = ("import sys, dualarm_mpc.mpc; "
+            "print(sorted(m for m in sys.modules if m.startswith('pydrake.systems')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
