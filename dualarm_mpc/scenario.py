@@ -119,7 +119,7 @@ class Scenario:
     events: list[Event] = field(default_factory=list)
     table_friction: float = 0.0  # Coulomb μ of table and objects
     # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
-    # one-step slide when τ = Δt (see systems/gripper.py). None: Coulomb friction only.
+    # one-step slide when τ = Δt (docs/model.md, "The one-step slide"). None: Coulomb only.
     slide_time_constant: float | None = 1.0
     goal_margin: float = 0.0  # the planner aims this far inside each goal box (closed loop)
     goal_slots: bool = False  # aim each object at its own column of its goal (closed loop)

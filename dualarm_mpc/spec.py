@@ -48,8 +48,8 @@ MAX_RULE_INSTANCES = 20_000
 
 # The paper's rules, §V-B, with weak next (docs/ltl.md: □(θ → ○θ) reads θ(k) → θ(k+1) for k < T).
 RULE_TEXT = {
-    # (18), and in the goal one step later too: in our object model (docs/model.md) a released
-    # object slides one more step, so θ at the release step alone would still allow a throw.
+    # (18), and in the goal one step later too: a released object slides one more step (docs/
+    # model.md, "The one-step slide"), so θ at the release step alone would still allow a throw.
     "no-throw (18)": "G(eta[i,j] & WX !eta[i,j] -> WX theta[j] & WX WX theta[j])",
     "no-juggle (19)": "G((eta[1,j] -> WX !eta[2,j]) & (eta[2,j] -> WX !eta[1,j]))",
     "no-swap (20)": "G(eta[i,j] -> WX !eta[i,l])",
