@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= out
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test test-fast bench lint clean
 
 $(BIN)/dualarm-mpc: pyproject.toml
 	test -d $(VENV) || $(PY) -m venv $(VENV)
@@ -22,11 +22,16 @@ demo: $(BIN)/dualarm-mpc
 test: $(BIN)/dualarm-mpc
 	$(BIN)/python -m pytest -q -rs  # -rs: a skipped test says why
 
+# The quick loop while working: everything but the tests marked slow (closed loop, Chromium,
+# subprocesses, Dask), about a minute.
+test-fast: $(BIN)/dualarm-mpc
+	$(BIN)/python -m pytest -q -rs -m 'not slow'
+
 bench: $(BIN)/dualarm-mpc
 	$(BIN)/python bench/table2.py
 
 lint: $(BIN)/dualarm-mpc
-	$(BIN)/ruff check dualarm_mpc tests bench
+	$(BIN)/ruff check dualarm_mpc tests bench examples
 
 clean:
 	rm -rf $(VENV) $(OUT)

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # a CLI process per input
+
 CORPUS = Path(__file__).parent / "bad_inputs"
 # A bad input is refused before any solve: Python, numpy and pydrake load in about a second.
 TIMEOUT_S = 10

@@ -37,6 +37,8 @@ from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, l
 from dualarm_mpc.sequential import solve_horizon
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
+pytestmark = pytest.mark.slow  # closed-loop simulations in Drake, seconds to minutes each
+
 # Statuses a replan may record: the solver's (dualarm_mpc.solver.Status), "done" once every
 # object rests in (or slides into) its goal, "stuck" when the objects left can provably no longer
 # reach their goals, "no_horizon" when no horizon was tried, "searching" / "over_budget" when the

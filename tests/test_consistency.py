@@ -23,6 +23,7 @@ def vc_rule1():
     return check(load_scenario("table1_vc", {"rule": 1}), joint=False)
 
 
+@pytest.mark.slow  # ten infeasibility proofs
 def test_table1_vc_rule_1_names_no_throw_for_every_object(vc_rule1) -> None:
     """§V-C's goals lie beyond the hands' reach: only a throw delivers, which rule 1 forbids."""
     assert not vc_rule1.consistent

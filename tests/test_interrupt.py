@@ -9,6 +9,8 @@ import signal
 import subprocess
 import sys
 
+import pytest
+
 from dualarm_mpc.horizon import solver_options
 from dualarm_mpc.plan import Plan
 from dualarm_mpc.scenario import load_scenario
@@ -36,6 +38,7 @@ def test_a_stop_before_the_first_step_returns_the_initial_state() -> None:
     assert result.partial and not result.segments and result.trajectory.steps == 0
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_plan_writes_the_steps_so_far(tmp_path) -> None:
     out = tmp_path / "plan.json"
     proc = subprocess.Popen(
@@ -54,6 +57,7 @@ def test_ctrl_c_during_plan_writes_the_steps_so_far(tmp_path) -> None:
     assert "(partial)" in stdout
 
 
+@pytest.mark.slow
 def test_ctrl_c_during_simulate_writes_the_summary_and_replay(tmp_path) -> None:
     summary, html = tmp_path / "summary.json", tmp_path / "replay.html"
     proc = subprocess.Popen(

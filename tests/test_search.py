@@ -156,6 +156,7 @@ def held_by_both(res) -> bool:
     return bool((g[:, 0].any(axis=0) & g[:, 1].any(axis=0)).any())
 
 
+@pytest.mark.slow  # 16 steps solved twice
 @pytest.mark.parametrize("seed", range(16))
 def test_search_returns_the_monolithic_optimum_of_the_same_horizon(seed: int) -> None:
     s = random_scene(seed)

@@ -291,6 +291,7 @@ def section_vc_plan():
     return scenario, plan(scenario)
 
 
+@pytest.mark.slow  # plans all of §V-C
 def test_section_vc_rule_2_delivers_all_ten_objects(section_vc_plan) -> None:
     scenario, p = section_vc_plan
     check = verify(scenario, p)
@@ -305,6 +306,7 @@ def test_section_vc_rule_2_delivers_all_ten_objects(section_vc_plan) -> None:
     assert all(isinstance(s, Segment) and s.status == "optimal" for s in p.segments)
 
 
+@pytest.mark.slow  # plans all of §V-C
 def test_section_vc_delivered_steps(section_vc_plan) -> None:
     scenario, p = section_vc_plan
     late = {

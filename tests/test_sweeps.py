@@ -17,6 +17,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 import benchlib  # noqa: E402
 import table2  # noqa: E402
 
+pytestmark = pytest.mark.slow  # starts Dask clusters
+
 distributed = pytest.importorskip("distributed", reason="dask is not installed "
                                   "(pip install '.[dask]')")
 

@@ -408,6 +408,7 @@ def test_measured_state_at_rest_matches_the_scenario():
     np.testing.assert_array_equal(x["grasp"], 0.0)
 
 
+@pytest.mark.slow  # seconds of plant simulation
 def test_pick_drag_and_release_at_rest():
     """The right hand goes to the object at (0.1, 0.1), grasps it, drags it to (0.3, 0.6) and
     releases it at rest: the object stays there."""
@@ -444,6 +445,7 @@ def _throw(scenario: Scenario, v: float):
     return at_release, rig.advance(8.0)
 
 
+@pytest.mark.slow  # seconds of plant simulation
 def test_throw_with_coulomb_friction_slides_v2_over_2_mu_g_and_stops():
     mu, v = 0.02, 0.3
     at_release, x = _throw(one_object_scenario(mu), v)
@@ -453,6 +455,7 @@ def test_throw_with_coulomb_friction_slides_v2_over_2_mu_g_and_stops():
     np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
 
 
+@pytest.mark.slow  # seconds of plant simulation
 @pytest.mark.parametrize("v", [0.2, 0.4])
 def test_throw_on_the_viscous_table_slides_v_dt_at_any_speed(v):
     """The table's drag (τ = Δt = 1 s, no Coulomb friction): the slide is v·Δt, the planner's

@@ -28,6 +28,8 @@ from dualarm_mpc.cli import main
 from dualarm_mpc.closed_loop import simulate
 from dualarm_mpc.scenario import load_scenario
 
+pytestmark = pytest.mark.slow  # records a run and opens it in Chromium
+
 # One object, §V-D bounds; the replan budget out of the way, so the arms move from the start.
 SCENE = """\
 name: viewer
