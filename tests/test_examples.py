@@ -23,3 +23,10 @@ def test_custom_rule_plans_verifies_and_plots(tmp_path) -> None:
     out = run("custom_rule.py", str(tmp_path / "plan.png"))
     assert "verified" in out and "(none of [1, 4])" in out
     assert (tmp_path / "plan.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_disturbance_knocks_moves_a_goal_and_still_delivers() -> None:
+    out = run("disturbance.py")
+    assert "object1 knocked" in out and "the red goal moved" in out
+    assert "object1 in its goal, object2 in its goal" in out
