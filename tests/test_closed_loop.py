@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+from scenes import ONE_ON_THE_ROBOT, yaml_text
 
 from dualarm_mpc.cli import main
 from dualarm_mpc.closed_loop import Summary, on_robot, simulate
@@ -381,23 +382,7 @@ def test_failing_replans_are_recorded_and_the_previous_plan_still_delivers() -> 
 
 # --- CLI ---------------------------------------------------------------------------------------
 
-CLI_SCENARIO = """\
-name: cli_closed_loop
-workspace: [-0.9, 0.9, -0.3, 0.9]
-max_speed: 0.2
-max_force: 0.1
-goals:
-  red: [0.225, 0.575, 0.65, 0.95]
-  green: [-0.175, 0.175, 0.85, 1.15]
-objects:
-  - {name: object1, position: [0.1, 0.1], goal: red}
-rule: 1
-m_o: 1
-n_o: 1
-delivery: rest
-goal_margin: 0.03
-solver: {time_limit_s: 10}
-"""
+CLI_SCENARIO = yaml_text(ONE_ON_THE_ROBOT, name="cli_closed_loop")
 
 
 def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:

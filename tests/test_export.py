@@ -8,22 +8,12 @@ import importlib.util
 import json
 
 import pytest
+from scenes import TWO_OBJECTS, yaml_text
 
 from dualarm_mpc.cli import main
 
-SCENARIO = """\
-name: export
-goals:
-  red: [0.2, 0.4, 0.5, 0.7]
-  blue: [-0.4, -0.2, 0.5, 0.7]
-objects:
-  - {name: object1, position: [0.1, 0.1], goal: red}
-  - {name: object2, position: [-0.1, 0.2], goal: blue}
-rule: 1
-m_o: 1
-n_o: 2
-solver: {time_limit_s: 30, max_horizon: 15, search: monolithic}
-"""
+SCENARIO = yaml_text(TWO_OBJECTS, name="export", rule=1, m_o=1,
+                     solver={"time_limit_s": 30, "max_horizon": 15, "search": "monolithic"})
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ import urllib.request
 import matplotlib.image
 import numpy as np
 import pytest
+from scenes import ONE_ON_THE_ROBOT, yaml_text
 
 try:
     from selenium import webdriver
@@ -31,23 +32,8 @@ from dualarm_mpc.scenario import load_scenario
 pytestmark = pytest.mark.slow  # records a run and opens it in Chromium
 
 # One object, §V-D bounds; the replan budget out of the way, so the arms move from the start.
-SCENE = """\
-name: viewer
-workspace: [-0.9, 0.9, -0.3, 0.9]
-max_speed: 0.2
-max_force: 0.1
-goals:
-  red: [0.225, 0.575, 0.65, 0.95]
-  green: [-0.175, 0.175, 0.85, 1.15]
-objects:
-  - {name: object1, position: [0.1, 0.1], goal: red}
-rule: 1
-m_o: 1
-n_o: 1
-delivery: rest
-goal_margin: 0.03
-solver: {time_limit_s: 10, replan_budget_s: 60}
-"""
+SCENE = yaml_text(ONE_ON_THE_ROBOT, name="viewer",
+                  solver={"time_limit_s": 10, "replan_budget_s": 60})
 RUN_S = 3.0
 
 CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
