@@ -43,12 +43,11 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-import yaml
 from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
 
 from dualarm_mpc.closed_loop import on_robot, simulate
 from dualarm_mpc.mld import REST_SPEED, in_goal
-from dualarm_mpc.scenario import load_scenario, merge_overrides
+from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides, parse_override
 
 SCENARIO = "table1_vd"
 M_O, N_O = 2, 6
@@ -60,13 +59,11 @@ NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object d
 
 
 def parse_set(text: str) -> dict:
+    """``--set`` as the CLI reads it (field paths, YAML 1.2 numbers)."""
     try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        raise argparse.ArgumentTypeError(f"not valid YAML: {text!r}") from err
-    if not isinstance(value, dict):
-        raise argparse.ArgumentTypeError(f"expected 'field: value', got {text!r}")
-    return value
+        return parse_override(text, f"--set {text!r}")
+    except ScenarioError as err:
+        raise argparse.ArgumentTypeError(str(err)) from err
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
