@@ -139,14 +139,25 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
         record["message"] = traceback.format_exc(limit=4)
         record["wall_time_s"] = time.perf_counter() - t0
         return record
-    resting = resting_in_goal(summary)
     solves = [r for r in summary.replans if r["status"] not in NO_SOLVE]
     record.update(
+        summary_record(summary),
+        planner_delivered=sum(d is not None for d in summary.delivered_time_s),
+        all_delivered=summary.all_delivered,
+        replans_without_plan=sum(r["status"] not in SOLUTION for r in solves),
+        replans_over_dt=sum(r["wall_s"] > scenario.dt for r in solves),
+    )
+    return record
+
+
+def summary_record(summary) -> dict:
+    """What every closed-loop bench records of a run's summary."""
+    resting = resting_in_goal(summary)
+    solves = [r for r in summary.replans if r["status"] not in NO_SOLVE]
+    return dict(
         status="ok",
         delivered=sum(resting),
         resting_in_goal=resting,
-        planner_delivered=sum(d is not None for d in summary.delivered_time_s),
-        all_delivered=summary.all_delivered,
         sim_time_s=summary.sim_time_s,
         wall_time_s=summary.wall_time_s,
         realtime_factor=summary.realtime_factor,
@@ -154,8 +165,6 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
         solving_replans=len(solves),
         replan_wall_s=percentiles([r["wall_s"] for r in solves]),
         statuses=dict(Counter(r["status"] for r in summary.replans)),
-        replans_without_plan=sum(r["status"] not in SOLUTION for r in solves),
-        replans_over_dt=sum(r["wall_s"] > scenario.dt for r in solves),
         replans_over_budget=len(summary.replans_over_budget),
         final_object_pos=summary.final_object_pos,
         final_object_speed=summary.final_object_speed,
@@ -164,7 +173,6 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
                     for r in summary.replans],
         load_avg_1min=os.getloadavg()[0],  # other work on the machine skews the times
     )
-    return record
 
 
 def run_line(k: int, n: int, r: dict) -> str:

@@ -69,11 +69,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 import traceback
-from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -92,7 +90,7 @@ from benchlib import (
     write_json_atomic,
     write_report,
 )
-from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal
+from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal, summary_record
 
 from dualarm_mpc.closed_loop import World, default_duration, on_robot, simulate
 from dualarm_mpc.mld import REST_SPEED, Rect, delivered, in_goal, target_box
@@ -431,36 +429,19 @@ def run_one(task: dict) -> dict:
     resting = resting_in_goal(summary)
     stuck = {names[j]: r for j, r in sorted(disturb.stuck.items())}
     missed = [names[j] for j in range(len(names)) if not resting[j] and names[j] not in stuck]
-    solves = [r for r in summary.replans if r["status"] not in NO_SOLVE]
     note = next((r["note"] for r in reversed(summary.replans) if r["status"] == "stuck"), "")
     lost = sorted(n.strip() for n in note.removesuffix(LOST_NOTE).split(",") if n.strip())
     record.update(
-        status="ok",
-        delivered=sum(resting),
-        resting_in_goal=resting,
+        summary_record(summary),
         stuck=stuck,
         stuck_delivered=sum(resting[names.index(n)] for n in stuck),
         missed=missed,
         planner_lost=lost,  # the objects the planner itself gave up on at the end
         timed_out=summary.sim_time_s >= duration - 1e-6,
         disturbances=disturb.log,
-        sim_time_s=summary.sim_time_s,
-        wall_time_s=summary.wall_time_s,
-        realtime_factor=summary.realtime_factor,
-        replans=len(summary.replans),
-        solving_replans=len(solves),
-        replan_wall_s=percentiles([r["wall_s"] for r in solves]),
-        statuses=dict(Counter(r["status"] for r in summary.replans)),
         failed_replans=sum(r["status"] in FAILED for r in summary.replans),
         failed_replan_log=[r for r in summary.replans if r["status"] in FAILED],
-        replans_over_budget=len(summary.replans_over_budget),
         final_goals=summary.goals,
-        final_object_pos=summary.final_object_pos,
-        final_object_speed=summary.final_object_speed,
-        delivered_time_s=summary.delivered_time_s,
-        replan_log=[{k: r[k] for k in ("t", "wall_s", "status", "horizon", "delivered", "note")}
-                    for r in summary.replans],
-        load_avg_1min=os.getloadavg()[0],  # other work on the machine skews the times
     )
     return record
 
