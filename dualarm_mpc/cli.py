@@ -2,7 +2,7 @@
 
 Exit codes: 0 done (or consistent), 2 bad input, 3 the task conflicts with the rules or bounds
 (no plan exists), 4 undecided within the time limits or a failed run (a plan that fails
-verification, an object not delivered)."""
+verification, an object not delivered), 130 interrupted (what was done is written)."""
 
 from __future__ import annotations
 
