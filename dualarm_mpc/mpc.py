@@ -51,6 +51,7 @@ STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is mea
 SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the plan's own state
 SNAP_VELOCITY = 0.05  # m/s
 GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close to the grasp box
+KEPT = 1e-3  # m: a plan that moves an object less than this to its end leaves it where it is
 # The share of a control period a replan may hold the simulation for: the plant's own simulation
 # of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
 BUDGET_SHARE = 0.4
@@ -191,7 +192,8 @@ class Replanner:
         once when nothing is left to solve (every object delivered, or the rest out of reach)."""
         sc = dataclasses.replace(self._scenario, goals=goals)
         state = self._committed_state(t, s, measured)
-        resting = _resting(sc, state, exhausted=t >= s.horizon_end - 1e-9)
+        resting = _resting(sc, state, exhausted=t >= s.horizon_end - 1e-9) | (
+            _resting(sc, state, exhausted=True) & _kept(s.plan, t))
         delivered_time = tuple((t if d is None else d) if r else None
                                for d, r in zip(s.delivered_time, resting, strict=True))
         # A thrown object still sliding into its goal needs nothing more from the robot.
@@ -348,6 +350,20 @@ def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
     inside = np.array([in_goal(state.object_pos[j], sc.goals[o.goal])
                        for j, o in enumerate(sc.objects)])
     return inside & at_rest(state.object_vel, REST_SPEED) & (exhausted | ~state.grasp.any(axis=0))
+
+
+def _kept(plan: TimedTrajectory, t: float) -> np.ndarray:
+    """(N,) objects the plan in force leaves where they are from ``t`` to its end: a held one has
+    nothing left to do. Without this, a plan that only holds an object still is replaced every
+    Δt by another one as long, never ends, and the object is never counted delivered — measured:
+    held at rest in its goal 1e-7 m short of its target box (a solver tolerance) with the hand at
+    the edge of its range, the shortest feasible horizon stayed 2 for 185 s."""
+    traj = plan.trajectory
+    k = int(np.floor((t - plan.t0) / plan.dt + 1e-9))
+    if not 0 <= k < len(traj.object_pos):
+        return np.zeros(traj.object_pos.shape[1], bool)
+    rest = traj.object_pos[k:]
+    return np.abs(rest - rest[0]).max(axis=(0, 2)) < KEPT
 
 
 @dataclass(frozen=True)

@@ -134,3 +134,31 @@ def test_the_core_needs_no_drake_system() -> None:
             "print(sorted(m for m in sys.modules if m.startswith('pydrake.systems')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_an_object_held_still_in_its_goal_by_the_plan_in_force_is_delivered() -> None:
+    """bench/robustness.py, rule 1 seed 2 (measured): an object held at rest in its goal 1e-7 m
+    short of its target box (a solver tolerance), the hand at the edge of its range. Every replan
+    found horizon 2 and held it still; the plan never ended, so the held object was never counted
+    delivered, for 185 s. A plan that keeps it where it is to its end leaves nothing to do."""
+    from dualarm_mpc.plan import TimedTrajectory, Trajectory
+
+    sc = scenario(objects=[{"name": "a", "position": [-0.1, 0.7], "goal": "green"}])
+    hand = np.array([[-0.05, 0.9], [-0.3, 0.5]])  # hand 1 at the hands' y limit, 2 cm above it
+    obj = np.array([[-0.1, 0.88 - 9e-8]])  # the target box starts at y = 0.88 (goal margin)
+    grasp = np.array([[1], [0]])
+
+    def still(n):
+        return np.repeat(n[None], 3, axis=0)
+
+    hold = Trajectory(still(hand), np.zeros((3, 2, 2)), np.zeros((2, 2, 2)), still(obj),
+                      np.zeros((3, 1, 2)), still(grasp))
+    s = MpcState(plan=TimedTrajectory(0.0, sc.dt, hold), step_objects=(0,), step_target=1,
+                 horizon_end=2.0, delivered_time=(None,))
+    measured = Measured(hand_pos=hand, hand_vel=np.zeros((2, 2)), object_pos=obj,
+                        object_vel=np.zeros((1, 2)), grasp=grasp.astype(float))
+    core = Replanner(sc)
+    s, r = core.step(1.0, s, measured, sc.goals)
+    core.close(s)
+    assert r.status == "done" and s.delivered_time == (1.0,)
+    assert not s.plan.trajectory.grasp.any(), "the hand lets go"
