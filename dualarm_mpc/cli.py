@@ -28,7 +28,6 @@ from dualarm_mpc.scenario import (
 HEARTBEAT_S = 15.0  # seconds of a search without a line before it says it is still searching
 
 
-
 def _overrides(args: argparse.Namespace) -> dict:
     """Scenario fields named by flags; ``--set`` YAML comes last and wins."""
     out: dict = {}

@@ -75,7 +75,7 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     options = options or solver_options(scenario)
     T = scenario.solver.max_horizon
     named = rule_formulas(scenario)
-    todo = [j for j in range(scenario.n_objects) if not at_rest_in_goal(scenario, state)[j]]
+    todo = [int(j) for j in np.flatnonzero(~at_rest_in_goal(scenario, state))]
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
         verdicts = list(pool.map(lambda j: _check_object(scenario, state, j, named, options),
                                  todo))

@@ -192,8 +192,8 @@ class Replanner:
         once when nothing is left to solve (every object delivered, or the rest out of reach)."""
         sc = dataclasses.replace(self._scenario, goals=goals)
         state = self._committed_state(t, s, measured)
-        resting = _resting(sc, state, exhausted=t >= s.horizon_end - 1e-9) | (
-            _resting(sc, state, exhausted=True) & _kept(s.plan, t))
+        # A held object counts once its plan is over, or when that plan keeps it where it is.
+        resting = _resting(sc, state, (t >= s.horizon_end - 1e-9) | _kept(s.plan, t))
         delivered_time = tuple((t if d is None else d) if r else None
                                for d, r in zip(s.delivered_time, resting, strict=True))
         # A thrown object still sliding into its goal needs nothing more from the robot.
@@ -344,12 +344,13 @@ def _arriving(sc: Scenario, state: State) -> np.ndarray:
     return inside & moving & ~state.grasp.any(axis=0)
 
 
-def _resting(sc: Scenario, state: State, exhausted: bool) -> np.ndarray:
+def _resting(sc: Scenario, state: State, released: np.ndarray | bool) -> np.ndarray:
     """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
-    counts once its plan is over (the hand stopped there and lets go when it moves on)."""
+    counts where ``released`` (per object, or for all): the hand has nothing left to do with it
+    and lets go when it moves on."""
     inside = np.array([in_goal(state.object_pos[j], sc.goals[o.goal])
                        for j, o in enumerate(sc.objects)])
-    return inside & at_rest(state.object_vel, REST_SPEED) & (exhausted | ~state.grasp.any(axis=0))
+    return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
 
 
 def _kept(plan: TimedTrajectory, t: float) -> np.ndarray:
