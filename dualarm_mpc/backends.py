@@ -91,6 +91,9 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
     h.setOptionValue("time_limit", float(options.time_limit_s))
     h.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
     h.setOptionValue("threads", int(options.threads))
+    if not options.heuristics:
+        for name in ("rins", "rens", "feasibility_jump", "root_reduced_cost"):
+            h.setOptionValue(f"mip_heuristic_run_{name}", False)
     if start is not None and start.complete:
         sol = highspy.HighsSolution()
         sol.col_value = list(start.value)

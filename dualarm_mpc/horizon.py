@@ -112,6 +112,7 @@ class HorizonProgram:
         program.add_system_constraints(self.prog, x, self.model)
         program.add_goal_atoms(self.prog, x, self.model, reach)
         self._hand_cost = program.add_cost(self.prog, x, scenario.state_weight)
+        self._forms: dict[Specification, StandardForm] = {}
 
     @functools.cached_property
     def form(self) -> StandardForm:
@@ -135,6 +136,16 @@ class HorizonProgram:
         self.encode(prog, spec)
         return prog
 
+    def _specified(self, spec: Specification) -> StandardForm:
+        """The model with ``spec``'s rows, encoded once per specification: the search solves
+        the same one many times (a probe, then its exact solve; one per hand assignment)."""
+        if spec not in self._forms:
+            ltl = MathematicalProgram()
+            ltl.NewContinuousVariables(self.prog.num_vars(), "model")
+            self.encode(ltl, spec)
+            self._forms[spec] = self.form.extended(standard_form(ltl))
+        return self._forms[spec]
+
     def standard_form(self, spec: Specification, allowed: np.ndarray | None = None,
                       hands: tuple[int, ...] = (0, 1), grasp: np.ndarray | None = None,
                       floor: np.ndarray | None = None) -> StandardForm:
@@ -146,10 +157,8 @@ class HorizonProgram:
         * ``grasp`` (T+1, 2, n_step): every η fixed;
         * ``floor`` (2,): proven lower bounds on each costed hand's Σ_k ‖u_i(k)‖₁ as rows,
           which lift the LP bound (otherwise near zero)."""
-        ltl = MathematicalProgram()
-        ltl.NewContinuousVariables(self.prog.num_vars(), "model")
-        self.encode(ltl, spec)
-        f = self.form.extended(standard_form(ltl))
+        f = self._specified(spec)
+        f = dataclasses.replace(f, c=f.c.copy(), col_lb=f.col_lb.copy(), col_ub=f.col_ub.copy())
         f.c[: len(self._hand_cost[0])] = sum(self._hand_cost[i] for i in hands)
         eta = self.x.eta
         if allowed is not None:

@@ -227,7 +227,7 @@ class StepSearch:
                start=None, floor=None, exact: bool = True) -> StepResult:
         """One subprogram; ``exact`` false stops at its first solution (a feasibility probe)."""
         remaining = max(self._deadline - time.perf_counter(), 1e-3)
-        options = replace(self.options, time_limit_s=remaining)
+        options = replace(self.options, time_limit_s=remaining, heuristics=False)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
         return self._program.solve(spec, options, start, allowed=allowed, hands=hands,
@@ -250,6 +250,8 @@ class StepSearch:
             return self._solve(restricted(self.spec, (j,), (j,)),
                                self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact)
         _, i, share = key
+        if not share and (idle := self._idle(restricted(self.spec, (), ()))) is not None:
+            return idle
         floor = np.zeros(N_HANDS)
         floor[i] = self._hand_bound(i, share)
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
@@ -257,6 +259,19 @@ class StepSearch:
         return self._solve(restricted(self.spec, share, share),
                            self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
                            exact=exact)
+
+    def _idle(self, spec: Specification) -> StepResult | None:
+        """The plan of no force and no grasp, optimal at cost zero if it satisfies ``spec`` and
+        the model: a hand with nothing to deliver, where nothing is held or moving, needs no
+        solve."""
+        if self._held or np.abs(self.state.hand_vel).max(initial=0) > 0:
+            return None
+        n = len(self.spec.objects)
+        traj = replay(self._model, self._program.local_state, np.zeros((self.horizon, N_HANDS, 2)),
+                      np.zeros((self.horizon + 1, N_HANDS, n), int))
+        if not self._feasible(traj, spec):
+            return None
+        return StepResult(Status.OPTIMAL, self.horizon, traj, 0.0, 0.0, 0.0, 0.0, 0, None)
 
     def _wanted(self, key: tuple, exact: bool) -> bool:
         """Not known yet: a probe's answer stands for an exact one only when "infeasible"."""
@@ -337,7 +352,7 @@ class StepSearch:
         force = np.stack([parts[i].trajectory.force[:, i] for i in range(N_HANDS)], axis=1)
         grasp = np.stack([parts[i].trajectory.grasp[:, i] for i in range(N_HANDS)], axis=1)
         traj = replay(self._model, self._program.local_state, force, grasp)
-        if self._feasible(traj):
+        if self._feasible(traj, self.spec):
             status = (Status.OPTIMAL if all(p.status is Status.OPTIMAL for p in parts)
                       else Status.FEASIBLE)
             return StepResult(status, self.horizon, traj, float(np.abs(force).sum()), 0.0, 0.0,
@@ -345,10 +360,11 @@ class StepSearch:
         repair = self._solve(self._node_spec(node), self._mask([]), grasp=grasp, exact=exact)
         return repair if repair.status.has_solution else None
 
-    def _feasible(self, traj) -> bool:
+    def _feasible(self, traj, spec: Specification) -> bool:
+        """Whether ``traj`` keeps the model's constraints, ends at rest and satisfies ``spec``."""
         if violations(self._model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
             return False
-        return evaluate(self.spec.formula(), self._trace(traj), self.horizon)
+        return evaluate(spec.formula(), self._trace(traj), self.horizon)
 
     def _trace(self, traj):
         goals = [Rect.of(self.scenario.goals[o.goal]) for o in self.scenario.objects]

@@ -74,6 +74,11 @@ class SolveOptions:
     mip_rel_gap: float = 1e-4
     threads: int = 1
     backend: str = "highs"  # a key of BACKENDS
+    # HiGHS's sub-MIP and rounding heuristics (RINS, RENS, feasibility jump, root reduced cost).
+    # The search's programs are small enough that their trees close in a few nodes, and these
+    # heuristics took half of their time (docs/search.md, "Solver settings"); other backends
+    # ignore the field.
+    heuristics: bool = True
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)
 
