@@ -256,9 +256,12 @@ class StepSearch:
         floor[i] = self._hand_bound(i, share)
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
             return _INFEASIBLE
+        probe = self._relax.get(key)  # its first solution starts the exact solve
+        start = None if probe is None or probe.solution is None else \
+            (lambda x, v=probe.solution: v)
         return self._solve(restricted(self.spec, share, share),
                            self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
-                           exact=exact)
+                           start=start, exact=exact)
 
     def _idle(self, spec: Specification) -> StepResult | None:
         """The plan of no force and no grasp, optimal at cost zero if it satisfies ``spec`` and
