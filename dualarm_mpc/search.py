@@ -66,20 +66,16 @@ from dualarm_mpc.ltl import (
     conj,
 )
 from dualarm_mpc.mld import N_HANDS, Rect, State, in_goal, replay, violations
+from dualarm_mpc.route import route_steps
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import Specification
+from dualarm_mpc.spec import Specification, instances
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
 BATCH = 2  # relaxations solved at once in the best-first loop
 
 
 # --- rule instances ----------------------------------------------------------------------------
-
-
-def instances(formula: Formula) -> tuple[Formula, ...]:
-    """The top-level conjuncts of an expanded rule (one per placeholder assignment)."""
-    return formula.args if isinstance(formula, And) else (formula,)
 
 
 def objects_of(formula: Formula) -> frozenset[int]:
@@ -215,6 +211,7 @@ class StepSearch:
         self._local = {j: n for n, j in enumerate(self.spec.objects)}
         local_grasp = self.state.grasp[:, list(self.spec.objects)]
         self._held = [j for n, j in enumerate(self.spec.objects) if local_grasp[:, n].any()]
+        self._no_throw = frozenset(self._local[j] for j in self.spec.released_only_in_goal())
 
     # -- the subprograms ----------------------------------------------------------------------
 
@@ -250,6 +247,8 @@ class StepSearch:
             return self._solve(restricted(self.spec, (j,), (j,)),
                                self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact)
         _, i, share = key
+        if self._route(i, share) > self.horizon:
+            return _INFEASIBLE
         if not share and (idle := self._idle(restricted(self.spec, (), ()))) is not None:
             return idle
         floor = np.zeros(N_HANDS)
@@ -262,6 +261,13 @@ class StepSearch:
         return self._solve(restricted(self.spec, share, share),
                            self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
                            start=start, exact=exact)
+
+    def _route(self, i: int, share: tuple[int, ...]) -> int:
+        """The route bound (``route.py``): fewer steps than this and hand i cannot deliver
+        ``share`` whatever the rest of the plan does."""
+        return route_steps(self._model, self._program.local_state, i,
+                           tuple(self._local[j] for j in share), self._no_throw,
+                           self.scenario.solver.max_horizon)
 
     def _idle(self, spec: Specification) -> StepResult | None:
         """The plan of no force and no grasp, optimal at cost zero if it satisfies ``spec`` and
@@ -392,11 +398,11 @@ class StepSearch:
         that neither hand can deliver alone but both together can; none with ``never``."""
         if self.handover != "auto":
             return set(self.spec.objects) if self.handover == "always" else set()
-        singles = [("hand", i, (j,)) for j in self.spec.objects for i in range(N_HANDS)]
-        self.fetch((k, False) for k in singles)
-        alone = [j for j in self.spec.objects
-                 if all(self._relax[("hand", i, (j,))].status is Status.INFEASIBLE
-                        for i in range(N_HANDS))]
+        alone = list(self.spec.objects)
+        for i in range(N_HANDS):  # an object one hand delivers needs no second probe
+            self.fetch((("hand", i, (j,)), False) for j in alone)
+            alone = [j for j in alone
+                     if self._relax[("hand", i, (j,))].status is Status.INFEASIBLE]
         self.fetch((("alone", j), False) for j in alone)
         return {j for j in alone if self._relax[("alone", j)].status is not Status.INFEASIBLE}
 

@@ -73,6 +73,11 @@ def expand(rule: Formula, objects: list[int]) -> Formula:
     return conj(instances)
 
 
+def instances(formula: Formula) -> tuple[Formula, ...]:
+    """The top-level conjuncts of an expanded rule (one per placeholder assignment)."""
+    return formula.args if isinstance(formula, And) else (formula,)
+
+
 def delivered(j: int, delivery: str) -> Formula:
     """"Object j is delivered": ◇θ_j (``reach``, the paper) or ◇□θ_j (``rest``: in the goal at the
     horizon's last step, where the model holds every object at rest)."""
@@ -106,6 +111,14 @@ class Specification:
     def formula(self) -> Formula:
         """The whole specification as one formula (eq. 21)."""
         return conj([self.task()] + [f for _, f in self.rules])
+
+    def released_only_in_goal(self) -> frozenset[int]:
+        """The objects (scenario indices) for which no-throw (18) is in force for both arms:
+        every release puts them in their goal (the route bound, ``route.py``, relies on it)."""
+        have = {inst for _, f in self.rules for inst in instances(f)}
+        rule = parse(RULE_TEXT["no-throw (18)"])
+        return frozenset(j for j in self.objects
+                         if set(instances(expand(rule, [j + 1]))) <= have)
 
     def monotone_in_horizon(self) -> bool:
         """Whether a plan of horizon T stays one of horizon T + 1 when the robot idles one more

@@ -1,0 +1,161 @@
+"""The route bound: the fewest steps in which one hand can deliver a set of objects.
+
+A hand holds one object at a time (eq. 15). To deliver object j it visits j's grasp box
+(eqs. 10–11) and later a place from which j is in its goal box (eq. 12), and every plan ends
+with the hand at rest (the program's v_hand(T) = 0). Each axis of a hand is a double integrator
+of its own (eq. 1, |v| ≤ v_max and |u| ≤ u_max per component, the hand range as a box), so the
+steps the visits need on one axis, the other axis left free, bound the planar plan from below.
+
+On one axis we propagate step by step the set of reachable (position, velocity) pairs after
+each visit: convex polygons, since the dynamics are linear and the bounds boxes; where two ways
+of getting somewhere meet we keep their convex hull, a superset, so the count stays a bound.
+A visit is a set of hand states:
+
+* grab j at a step k ≥ 1: |p_hand(k) − p_j| ≤ h_j;
+* deliver j: j is held with a constant offset of at most h_j (eq. 8), so while held it is in
+  its goal G_j when p_hand(k) ∈ G_j ⊕ h_j; released, it slides one step at the hand's last
+  velocity (docs/model.md), so from the last held step k it ends in G_j when
+  p_hand(k) + 2Δt·v_hand(k) ∈ G_j ⊕ h_j.
+
+Visits are chained in the order of a route. When no-throw (18) holds for every object of the
+set, an object is released only in its goal, so the hand finishes one object before it grabs
+the next (eq. 15) and the routes are the orders of the set; otherwise a hand could put an
+object down on the way and come back for it, and the bound is that of the slowest object alone.
+
+Nothing else enters (no other rule, no other hand, no eq. 16): every plan of one hand's program
+makes these visits, so when the bound exceeds a horizon, the program has no plan there.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+
+import numpy as np
+
+from dualarm_mpc.mld import Model, Rect, State, in_goal
+
+_EPS = 1e-9
+# A convex polygon of (position, velocity) vertices, counter-clockwise; [] is empty. Pure
+# Python: the polygons have a handful of vertices, where numpy's per-call cost dominates.
+Polygon = list[tuple[float, float]]
+
+
+def _hull(points: list[tuple[float, float]]) -> Polygon:
+    """The convex hull of ``points``, counter-clockwise (Andrew's monotone chain)."""
+    pts = sorted(set(points))
+    if len(pts) <= 2:
+        return pts
+
+    def chain(seq) -> list:
+        out: list = []
+        for p in seq:
+            while len(out) >= 2 and (out[-1][0] - out[-2][0]) * (p[1] - out[-2][1]) \
+                    - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0]) <= 1e-15:
+                out.pop()
+            out.append(p)
+        return out
+
+    return chain(pts)[:-1] + chain(pts[::-1])[:-1]
+
+
+def _clip(poly: Polygon, a0: float, a1: float, b: float) -> Polygon:
+    """``poly`` ∩ {z : a0·z0 + a1·z1 ≤ b} (Sutherland–Hodgman against one half-plane)."""
+    if not poly:
+        return poly
+    s = [a0 * x + a1 * v - b for x, v in poly]
+    inside = [d <= _EPS for d in s]
+    if all(inside):
+        return poly
+    if not any(inside):
+        return []
+    out = []
+    n = len(poly)
+    for k in range(n):
+        q = (k + 1) % n
+        if inside[k]:
+            out.append(poly[k])
+        if inside[k] != inside[q]:
+            t = s[k] / (s[k] - s[q])
+            out.append((poly[k][0] + (poly[q][0] - poly[k][0]) * t,
+                        poly[k][1] + (poly[q][1] - poly[k][1]) * t))
+    return out
+
+
+def _slab(poly: Polygon, lo: float, hi: float, slope: float = 0.0, speed: bool = False) -> Polygon:
+    """``poly`` ∩ {lo ≤ p + slope·v ≤ hi}, or ∩ {lo ≤ v ≤ hi} with ``speed``."""
+    a0, a1 = (0.0, 1.0) if speed else (1.0, slope)
+    return _clip(_clip(poly, a0, a1, hi), -a0, -a1, -lo)
+
+
+def _union(polys: list[Polygon]) -> Polygon:
+    return _hull([p for poly in polys for p in poly])
+
+
+Slab = tuple[float, float, float]  # lo ≤ p + slope·v ≤ hi
+Axis = tuple[float, float, float, float, float]  # Δt, v_max, u_max, and the hand range lo, hi
+
+
+def _step(axis: Axis, poly: Polygon) -> Polygon:
+    """Every state one step after one of ``poly`` (eq. 1), within the velocity and range bounds."""
+    if not poly:
+        return poly
+    dt, v_max, u_max, lo, hi = axis
+    du = dt * u_max
+    poly = _hull([(x + dt * v, v + d) for x, v in poly for d in (du, -du)])
+    return _slab(_slab(poly, -v_max, v_max, speed=True), lo, hi)
+
+
+@functools.lru_cache(maxsize=8192)
+def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
+               cap: int) -> int:
+    """The fewest steps T ≤ ``cap`` after which one axis of a hand starting at ``start``
+    (position, velocity) has made every visit in order, each at a step ≥ 1 (several may share
+    one), and is at rest; ``cap + 1`` if none. A visit is a union of slabs. Pure, so cached:
+    the horizons of a sequential step ask the same questions."""
+    stages: list[Polygon] = [[start]] + [[] for _ in visits]
+    for k in range(1, cap + 1):
+        stages = [_step(axis, p) for p in stages]
+        for m, slabs in enumerate(visits, start=1):
+            stages[m] = _union([stages[m]] + [_slab(stages[m - 1], *s) for s in slabs])
+        if _slab(stages[-1], -_EPS, _EPS, speed=True):
+            return k
+    return cap + 1
+
+
+def route_steps(model: Model, state: State, hand: int, objects: tuple[int, ...],
+                no_throw: frozenset[int], cap: int) -> int:
+    """A lower bound on the horizon of any plan in which ``hand`` alone delivers every one of
+    ``objects`` (indices into ``model`` and ``state``); ``cap + 1`` means more than ``cap``.
+    ``no_throw``: the objects whose no-throw (18) instances are in force. 0 when the bound
+    cannot speak: an object held now, moving, or already in its goal."""
+    for n in objects:
+        if state.grasp[:, n].any() or np.abs(state.object_vel[n]).max() > 0 \
+                or in_goal(state.object_pos[n], model.goals[n]):
+            return 0
+    if not objects:
+        return 0
+    if len(objects) > 1 and not set(objects) <= no_throw:  # it may put one down on the way
+        return max(route_steps(model, state, hand, (n,), no_throw, cap) for n in objects)
+    ws: Rect = model.workspace
+    best = cap + 1
+    for order in itertools.permutations(objects):
+        worst = 0
+        for a in range(2):
+            axis = (model.dt, model.v_max, model.u_max, float(ws.lo[a]), float(ws.hi[a]))
+            visits = tuple(v for n in order for v in _visits(model, state, n, a, no_throw))
+            start = (float(state.hand_pos[hand, a]), float(state.hand_vel[hand, a]))
+            worst = max(worst, axis_steps(axis, start, visits, cap))
+            if worst >= best:
+                break
+        best = min(best, worst)
+    return best
+
+
+def _visits(model: Model, state: State, n: int, a: int,
+            no_throw: frozenset[int]) -> tuple[tuple[Slab, ...], tuple[Slab, ...]]:
+    """Object n's two visits on axis a: grab, then deliver (held, or after its slide)."""
+    p, h = float(state.object_pos[n, a]), float(model.grasp_half[n])
+    lo, hi = float(model.goals[n].lo[a]) - h, float(model.goals[n].hi[a]) + h
+    deliver = ((lo, hi, 0.0),) if n in no_throw else ((lo, hi, 0.0), (lo, hi, 2 * model.dt))
+    return ((p - h, p + h, 0.0),), deliver

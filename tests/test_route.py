@@ -1,0 +1,91 @@
+"""Tests for dualarm_mpc.route (the route bound): it never exceeds what the MILP allows.
+
+Soundness is what matters: when the bound says hand i needs more than T steps to deliver a set,
+the one-hand program of horizon T (the search's relaxation, the same MILP the search would
+solve) must be infeasible. Checked at T = bound − 1 on seeded random states — moving hands,
+both rules, sets of one and two objects — and the bound is checked to be worth having.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from dualarm_mpc.horizon import HorizonProgram
+from dualarm_mpc.mld import N_HANDS, Model, State
+from dualarm_mpc.route import axis_steps, route_steps
+from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.search import restricted
+from dualarm_mpc.solver import SolveOptions, Status
+from dualarm_mpc.spec import specification
+
+
+def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:
+    # From rest at 0 to rest anywhere in [0.5, 0.6] with v_max 0.2, u_max 0.1, Δt 1: the
+    # position after k steps from rest is at most 0.1 + 0.2 + 0.2 + ... and the hand must
+    # brake; 0.1 + 0.2 + 0.2 + 0.1 = 0.6 in 4 moves plus the step that ends at rest.
+    axis = (1.0, 0.2, 0.1, -1.0, 1.0)
+    visit = ((0.5, 0.6, 0.0),)
+    assert axis_steps(axis, (0.0, 0.0), (visit,), 40) == 5
+    # Out of the hand range: never.
+    assert axis_steps(axis, (0.0, 0.0), (((1.5, 1.6, 0.0),),), 40) == 41
+
+
+def _random_state(scenario, objects, rng) -> State:
+    """The scenario's objects, hands anywhere in their range with eq. (16), moving."""
+    state = State.initial(scenario)
+    ws = scenario.workspace
+    x = np.sort(rng.uniform(ws[0], ws[1], 2))[::-1]
+    x[1] = min(x[1], x[0] - scenario.hand_gap)
+    hand_pos = np.column_stack([x, rng.uniform(ws[2], ws[3], 2)])
+    hand_vel = rng.uniform(-1, 1, (2, 2)) * scenario.max_speed * (rng.random() < 0.5)
+    return State(hand_pos, hand_vel, state.object_pos, state.object_vel, state.grasp)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rule", [1, 2])
+@pytest.mark.parametrize("seed", range(3))
+def test_the_bound_never_rules_out_a_horizon_the_one_hand_program_allows(rule, seed) -> None:
+    scenario = load_scenario("table1_vd", {"rule": rule, "seed": seed, "delivery": "reach",
+                                           "random_objects": {"count": 4}})
+    rng = np.random.default_rng(seed)
+    objects = [0, 1, 2, 3]
+    state = _random_state(scenario, objects, rng)
+    spec = specification(scenario, objects)
+    model = Model.from_scenario(scenario, objects)
+    local = state.select(objects)
+    no_throw = frozenset(objects.index(j) for j in spec.released_only_in_goal())
+    assert no_throw == (frozenset(range(4)) if rule == 1 else frozenset())
+    options = SolveOptions(time_limit_s=60.0, mip_rel_gap=1.0, heuristics=False)
+    shares = [(j,) for j in objects] + list(itertools.combinations(objects, 2))[:3]
+    checked = 0
+    for i in range(N_HANDS):
+        for share in shares:
+            bound = route_steps(model, local, i, tuple(objects.index(j) for j in share),
+                                no_throw, scenario.solver.max_horizon)
+            if bound <= 1:
+                continue
+            program = HorizonProgram(scenario, state, objects, bound - 1)
+            allowed = np.zeros((N_HANDS, len(objects)), bool)
+            allowed[i, [objects.index(j) for j in share]] = True
+            res = program.solve(restricted(spec, share, share), options, allowed=allowed,
+                                hands=(i,))
+            assert res.status is Status.INFEASIBLE, (i, share, bound)
+            checked += 1
+    assert checked >= 10  # the bound speaks for most sets
+
+
+def test_under_no_throw_a_hand_finishes_one_object_before_the_next() -> None:
+    scenario = load_scenario("table1_vd", {"rule": 1, "seed": 0, "delivery": "reach"})
+    objects = [0, 1, 2]
+    model = Model.from_scenario(scenario, objects)
+    state = State.initial(scenario).select(objects)
+    singles = [route_steps(model, state, 0, (n,), frozenset({0, 1, 2}), 40) for n in range(3)]
+    pair = route_steps(model, state, 0, (0, 1), frozenset({0, 1, 2}), 40)
+    free = route_steps(model, state, 0, (0, 1), frozenset(), 40)
+    # Two trips to the goals and back take longer than either trip; a hand that may put an
+    # object down is bounded by the slower trip alone.
+    assert pair > max(singles[:2]) + 3
+    assert free == max(route_steps(model, state, 0, (n,), frozenset(), 40) for n in (0, 1))
