@@ -133,7 +133,7 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
         record["time_limit_s"] = scenario.solver.time_limit_s
         record["n_objects"] = scenario.n_objects
         record["objects"] = [{"name": o.name, "position": o.position, "goal": o.goal}
-                             for o in scenario.objects]
+                             for o in scenario.task.objects]
         summary = simulate(scenario, args.duration, progress=progress)
     except Exception:  # a bug in one run must not end the bench: record it and go on
         record["message"] = traceback.format_exc(limit=4)
@@ -145,7 +145,7 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
         planner_delivered=sum(d is not None for d in summary.delivered_time_s),
         all_delivered=summary.all_delivered,
         replans_without_plan=sum(r["status"] not in SOLUTION for r in solves),
-        replans_over_dt=sum(r["wall_s"] > scenario.dt for r in solves),
+        replans_over_dt=sum(r["wall_s"] > scenario.robot.dt for r in solves),
     )
     return record
 

@@ -122,8 +122,8 @@ LOST_NOTE = " can no longer reach the goal"  # the planner's "stuck" replan note
 def hand_ranges(scenario: Scenario) -> tuple[Rect, Rect]:
     """The range of hand 1 (right) and hand 2 (left): the workspace, less eq. (16)'s gap on the
     side of the other hand (x_arm2 + gap <= x_arm1, both inside the workspace)."""
-    ws = Rect.of(scenario.workspace)
-    gap = scenario.hand_gap
+    ws = Rect.of(scenario.robot.workspace)
+    gap = scenario.robot.hand_gap
     right = Rect(ws.lo + [gap, 0.0], ws.hi.copy())
     left = Rect(ws.lo.copy(), ws.hi - [gap, 0.0])
     return right, left
@@ -134,8 +134,8 @@ def stuck_reason(scenario: Scenario, goals: dict[str, list[float]], j: int,
     """Why no plan within the model can deliver object j from ``p`` with ``goals`` (None: it can,
     or it is in its goal already). From the model's bounds only (module docstring)."""
     p = np.asarray(p, float)[:2]
-    sc = replace(scenario, goals=goals)
-    obj = sc.objects[j]
+    sc = replace(scenario, task=replace(scenario.task, goals=goals))
+    obj = sc.task.objects[j]
     if in_goal(p, goals[obj.goal]):
         return None
     half = obj.grasp_half_size
@@ -147,7 +147,7 @@ def stuck_reason(scenario: Scenario, goals: dict[str, list[float]], j: int,
         if np.any(lo > hi + 1e-12):
             continue
         graspable = True
-        if sc.rule != 1:
+        if sc.task.rule != 1:
             return None  # rule 2: put down and pick up again, or throw: any graspable object
         # Rule 1: one grasp, offset o = p - h (h in [lo, hi]); the object reaches o + range.
         reach_lo = p - hi + hand.lo
@@ -198,10 +198,10 @@ class Disturbances:
             self.plan.append(Planned(kind, due, rng, give_up=due + PATIENCE, next_look=due))
         self.plan.sort(key=lambda d: d.due)
         sc = self.scenario
-        table = Rect.of(_table_extent(sc)).shrink(sc.object_size / 2)
+        table = Rect.of(_table_extent(sc)).shrink(sc.table.object_size / 2)
         self.table = table  # where an object's centre may be: the whole box on the table top
-        self.initial_stuck = {j: r for j in range(sc.n_objects)
-                              if (r := stuck_reason(sc, sc.goals, j, sc.objects[j].position))}
+        self.initial_stuck = {j: r for j, o in enumerate(sc.task.objects)
+                              if (r := stuck_reason(sc, sc.task.goals, j, o.position))}
         self.stuck = dict(self.initial_stuck)
 
     # the Disturbance protocol
@@ -239,8 +239,8 @@ class Disturbances:
         if resting.size == 0:
             return None, None
         j = int(d.rng.choice(resting))
-        goal = Rect.of(world.goals[self.scenario.objects[j].goal])
-        margin = self.scenario.object_size / 2  # the whole box out of the goal
+        goal = Rect.of(world.goals[self.scenario.task.objects[j].goal])
+        margin = self.scenario.table.object_size / 2  # the whole box out of the goal
         return self._knock(d, world, j, lambda p: not goal.contains(p, tol=margin))
 
     def _table(self, d: Planned, world: World):
@@ -248,8 +248,8 @@ class Disturbances:
         for _ in range(TRIES):
             p = d.rng.uniform(self.table.lo, self.table.hi)
             if self._free(p, j, world):
-                return self._move(world, j, p), {"target": self.scenario.objects[j].name}
-        return None, {"target": self.scenario.objects[j].name, "skipped": "no free place"}
+                return self._move(world, j, p), {"target": self.scenario.task.objects[j].name}
+        return None, {"target": self.scenario.task.objects[j].name, "skipped": "no free place"}
 
     def _goal(self, d: Planned, world: World):
         sc = self.scenario
@@ -257,10 +257,10 @@ class Disturbances:
         name = names[int(d.rng.integers(len(names)))]
         old = Rect.of(world.goals[name])
         size = old.hi - old.lo
-        ws = Rect.of(sc.workspace)
+        ws = Rect.of(sc.robot.workspace)
         region = Rect(np.maximum(ws.lo, self.table.lo), np.minimum(ws.hi, self.table.hi) - size)
         others = [Rect.of(b) for g, b in world.goals.items() if g != name]
-        strangers = [j for j, o in enumerate(sc.objects) if o.goal != name]
+        strangers = [j for j, o in enumerate(sc.task.objects) if o.goal != name]
         for _ in range(TRIES):
             lo = d.rng.uniform(region.lo, region.hi)
             new = Rect(lo, lo + size)
@@ -268,7 +268,7 @@ class Disturbances:
                 continue
             if any(_overlap(new, b, CLEARANCE) for b in others):
                 continue
-            if new.contains(world.object_pos[strangers], tol=sc.object_size / 2).any():
+            if new.contains(world.object_pos[strangers], tol=sc.table.object_size / 2).any():
                 continue
             box = [round(float(v), 4) for v in new.bounds()]
             return Event(time=round(world.t, 3), kind="move_goal", target=name, box=box), {
@@ -281,11 +281,11 @@ class Disturbances:
         sc = self.scenario
         resting = np.array([delivered(world.object_pos[j], world.object_vel[j],
                                       world.goals[o.goal], REST_SPEED)
-                            for j, o in enumerate(sc.objects)])
+                            for j, o in enumerate(sc.task.objects)])
         return np.flatnonzero(resting & ~world.grasp.any(axis=0))
 
     def _knock(self, d: Planned, world: World, j: int, accept):
-        name = self.scenario.objects[j].name
+        name = self.scenario.task.objects[j].name
         for _ in range(TRIES):
             angle = d.rng.uniform(0.0, 2 * math.pi)
             distance = d.rng.uniform(*KNOCK_DISTANCE)
@@ -300,20 +300,21 @@ class Disturbances:
         if not self.table.contains(p):
             return False
         others = np.delete(world.object_pos, j, axis=0)
-        if others.size and (np.abs(others - p).max(axis=1) < sc.object_size + CLEARANCE).any():
+        size = sc.table.object_size
+        if others.size and (np.abs(others - p).max(axis=1) < size + CLEARANCE).any():
             return False
-        reach = sc.objects[j].grasp_half_size + sc.object_size / 2 + CLEARANCE
+        reach = sc.task.objects[j].grasp_half_size + size / 2 + CLEARANCE
         return not (np.abs(world.hand_pos - p).max(axis=1) < reach).any()
 
     def _move(self, world: World, j: int, p: np.ndarray) -> Event:
         position = [round(float(v), 4) for v in p]
         return Event(time=round(world.t, 3), kind="move_object",
-                     target=self.scenario.objects[j].name, position=position)
+                     target=self.scenario.task.objects[j].name, position=position)
 
     def _judge(self, event: Event, world: World) -> dict:
         """Re-decide stuck for the objects the event touches; the log entry's fields."""
         sc = self.scenario
-        names = [o.name for o in sc.objects]
+        names = [o.name for o in sc.task.objects]
         if event.kind == "move_object":
             j = names.index(event.target)
             reason = stuck_reason(sc, world.goals, j, event.position)
@@ -323,7 +324,7 @@ class Disturbances:
                     "stuck": reason}
         goals = {**world.goals, event.target: event.box}
         stuck = {}
-        for j, o in enumerate(sc.objects):
+        for j, o in enumerate(sc.task.objects):
             if o.goal == event.target:
                 reason = stuck_reason(sc, goals, j, world.object_pos[j])
                 self._set_stuck(j, reason)
@@ -413,10 +414,10 @@ def run_one(task: dict) -> dict:
         disturb = Disturbances(scenario, seed, task["per_kind"], tuple(task["kinds"]))
         duration = task["duration"] or (default_duration(scenario)
                                         + EXTRA_DURATION * len(disturb.plan))
-        record.update(m_o=scenario.m_o, n_o=scenario.n_o, n_objects=scenario.n_objects,
+        record.update(m_o=scenario.task.m_o, n_o=scenario.task.n_o, n_objects=scenario.n_objects,
                       time_limit_s=scenario.solver.time_limit_s, duration_s=duration,
                       objects=[{"name": o.name, "position": o.position, "goal": o.goal}
-                               for o in scenario.objects],
+                               for o in scenario.task.objects],
                       planned=[{"kind": d.kind, "due": d.due} for d in disturb.plan])
         summary = simulate(scenario, duration, progress=progress, disturb=disturb)
     except Exception:  # a bug in one run must not end the bench: record it and go on

@@ -126,8 +126,8 @@ def _objects_left(scenario) -> int:
     left = int((~at_rest_in_goal(scenario, State.initial(scenario))).sum())
     if not left:
         print("nothing to do: every object already rests in its goal")
-    elif left < scenario.m_o:
-        print(f"note: m_o = {scenario.m_o}, but {left} object(s) are left to deliver: a step "
+    elif left < scenario.task.m_o:
+        print(f"note: m_o = {scenario.task.m_o}, but {left} object(s) are left to deliver: a step "
               f"delivers {left}")
     return left
 
@@ -207,8 +207,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from dualarm_mpc.verify import verify
 
     scenario = load_scenario(args.scenario, _overrides(args))
-    print(f"{scenario.name}: {scenario.n_objects} objects, rule {scenario.rule}, "
-          f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o}), delivery {scenario.delivery}")
+    task = scenario.task
+    print(f"{scenario.name}: {scenario.n_objects} objects, rule {task.rule}, "
+          f"(m_o, n_o) = ({task.m_o}, {task.n_o}), delivery {task.delivery}")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
         return 3
     left = _objects_left(scenario)
@@ -228,8 +229,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     def progress(seg) -> None:
         said[0] = said[1] = time.perf_counter()
         count[0] += 1
-        names = ",".join(scenario.objects[j].name.removeprefix("object") for j in seg.delivered)
-        fewer = len(seg.objects) < scenario.m_o  # the last objects: m_o shrinks to them
+        names = ",".join(task.objects[j].name.removeprefix("object") for j in seg.delivered)
+        fewer = len(seg.objects) < task.m_o  # the last objects: m_o shrinks to them
         print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
               f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}"
               + (f"  (m_o = {len(seg.objects)}: the objects left)" if fewer else ""), flush=True)
@@ -293,7 +294,7 @@ def _save_plan(result, args: argparse.Namespace, scenario) -> None:
         result.save(args.out)
         print(f"wrote {args.out}{partial}")
     if args.plot:
-        plot_plan(result, args.plot, title=f"{scenario.name}, rule {scenario.rule}: cost "
+        plot_plan(result, args.plot, title=f"{scenario.name}, rule {scenario.task.rule}: cost "
                   f"{result.total_cost:.3f}, solve {result.total_solve_time_s:.1f} s{partial}")
         print(f"wrote {args.plot}{partial}")
 
@@ -306,15 +307,15 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     overrides = on_robot(base)
     merge_overrides(overrides, _overrides(args))
     scenario = apply_overrides(base, overrides)
-    print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.rule}, "
-          f"(m_o, n_o) = ({scenario.m_o}, {scenario.n_o})")
+    print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.task.rule}, "
+          f"(m_o, n_o) = ({scenario.task.m_o}, {scenario.task.n_o})")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
         return 3
     _objects_left(scenario)
     print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")
 
     def progress(r) -> None:
-        names = ",".join(scenario.objects[j].name.removeprefix("object") for j in r.objects)
+        names = ",".join(scenario.task.objects[j].name.removeprefix("object") for j in r.objects)
         print(f"{r.t:>7.1f}  {r.delivered:>5}/{scenario.n_objects:<3}  {r.status:<10} "
               f"{r.horizon if r.horizon is not None else '-':>3}  {r.wall_s:>9.3f}  {names}"
               + (f"  ({r.note})" if r.note else ""), flush=True)

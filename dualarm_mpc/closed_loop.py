@@ -39,8 +39,8 @@ def on_robot(scenario: Scenario) -> dict:
     """The overrides that make ``scenario`` fit for the robot: ``ON_ROBOT``, and random objects
     drawn at least a box apart (plus 2 cm), since physical boxes cannot overlap."""
     extra = {}
-    if scenario.random_objects is not None:
-        extra["random_objects"] = {"min_separation": scenario.object_size + 0.02}
+    if scenario.task.random_objects is not None:
+        extra["random_objects"] = {"min_separation": scenario.table.object_size + 0.02}
     return {**ON_ROBOT, **extra}
 SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
 
@@ -99,14 +99,14 @@ class Disturbance(Protocol):
 
 def default_duration(scenario: Scenario) -> float:
     """Long enough for the sequential steps with room for replanning."""
-    return 30.0 + 15.0 * scenario.n_objects * scenario.dt
+    return 30.0 + 15.0 * scenario.n_objects * scenario.robot.dt
 
 
 def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
     """An environment change: knock an object to a new place, or move a goal."""
     plant = dual.station.plant
     if event.kind == "move_object":
-        j = [o.name for o in scenario.objects].index(event.target)
+        j = [o.name for o in scenario.task.objects].index(event.target)
         body = dual.station.objects[j]
         pc = plant.GetMyMutableContextFromRoot(context)
         z = plant.EvalBodyPoseInWorld(pc, body).translation()[2]
@@ -163,7 +163,7 @@ class _Monitor:
                 raise ValueError(f"disturb: next_time() stayed at {after} after a call")
         if self.observe is not None:
             self.observe(self.dual, context)
-        dt = self.scenario.dt
+        dt = self.scenario.robot.dt
         if t < dt / 2 or abs(t - dt * round(t / dt)) > 1e-9:
             return EventStatus.Succeeded()
         pending = self.next_event < len(self.events) or (d is not None
@@ -251,16 +251,16 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
     vel = _object_velocities(dual, context)
     speed = [float(np.linalg.norm(v)) for v in vel]
     resting = [bool(delivered(pos[j, :2], vel[j], goals[o.goal], REST_SPEED))
-               for j, o in enumerate(scenario.objects)]
+               for j, o in enumerate(scenario.task.objects)]
     return Summary(
         goals={k: list(v) for k, v in goals.items()},
-        objects=[{"name": o.name, "goal": o.goal} for o in scenario.objects],
+        objects=[{"name": o.name, "goal": o.goal} for o in scenario.task.objects],
         final_object_pos=np.round(pos, 6).tolist(),
         final_object_speed=[round(v, 6) for v in speed],
         delivered_time_s=[None if d is None else round(d, 3) for d in s.delivered_time],
         replans=[{"t": round(r.t, 3), "wall_s": round(r.wall_s, 4), "status": r.status,
                   "cost": r.cost, "horizon": r.horizon,
-                  "objects": [scenario.objects[j].name for j in r.objects],
+                  "objects": [scenario.task.objects[j].name for j in r.objects],
                   "delivered": r.delivered, "note": r.note} for r in replans],
         realtime_factor=round(t / wall, 4) if wall > 0 else float("inf"),
         sim_time_s=round(t, 3),

@@ -80,7 +80,7 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
         verdicts = list(pool.map(lambda j: _check_object(scenario, state, j, named, options),
                                  todo))
     conflicts = tuple(v for v in verdicts if isinstance(v, Conflict))
-    undecided = tuple(scenario.objects[j].name for j, v in zip(todo, verdicts, strict=True)
+    undecided = tuple(scenario.task.objects[j].name for j, v in zip(todo, verdicts, strict=True)
                       if v is Status.TIME_LIMIT)
     if joint and todo and not conflicts and not undecided:
         objects = select_objects(scenario, state, todo)
@@ -88,7 +88,7 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
         quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s,
                                                               JOINT_TIME_LIMIT_S))
         status = _feasible(scenario, state, spec, quick)
-        names = tuple(scenario.objects[j].name for j in objects)
+        names = tuple(scenario.task.objects[j].name for j in objects)
         if status is Status.INFEASIBLE:
             conflicts = (_joint_conflict(scenario, state, spec, names, quick),)
         elif status is Status.TIME_LIMIT:
@@ -147,19 +147,19 @@ def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[st
         ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),))
     never_held = bool(needed) and _feasible(scenario, state, held, options) is Status.INFEASIBLE
     names = tuple(name for name, _ in needed)
-    return Conflict((scenario.objects[j].name,), names,
+    return Conflict((scenario.task.objects[j].name,), names,
                     _reason(scenario, j, names, never_held))
 
 
 def _reason(scenario: Scenario, j: int, rules: tuple[str, ...],
             never_held: bool) -> str:
     """Why object j cannot be delivered, in plain words."""
-    obj = scenario.objects[j]
+    obj = scenario.task.objects[j]
     head = f"{obj.name} → {obj.goal}: "
     if not rules:
         return head + (f"no plan brings it into its goal within {scenario.solver.max_horizon} "
-                       f"steps of {scenario.dt} s with |v| ≤ {scenario.max_speed} and "
-                       f"|u| ≤ {scenario.max_force} (solver.max_horizon, dt, max_speed, "
+                       f"steps of {scenario.robot.dt} s with |v| ≤ {scenario.robot.max_speed} and "
+                       f"|u| ≤ {scenario.robot.max_force} (solver.max_horizon, dt, max_speed, "
                        "max_force)")
     listed = " and ".join(rules)
     if never_held:
@@ -175,8 +175,8 @@ def _reason(scenario: Scenario, j: int, rules: tuple[str, ...],
 
 def _beyond_reach(scenario: Scenario, j: int) -> str:
     """The bound that keeps a held object j out of its goal (``"y ≤ 0.95"``), or ""."""
-    ws = Rect.of(scenario.workspace)
-    half = scenario.objects[j].grasp_half_size
+    ws = Rect.of(scenario.robot.workspace)
+    half = scenario.task.objects[j].grasp_half_size
     goal = target_box(scenario, j)
     for axis, name in enumerate("xy"):
         if goal.lo[axis] > ws.hi[axis] + half:

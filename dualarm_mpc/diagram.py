@@ -43,7 +43,7 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     station = AddStation(builder, scenario, time_step)
     stack = AddControlStack(builder, station)
     planner = builder.AddNamedSystem("mpc_planner", MpcPlanner(scenario, solve=solve))
-    goals = builder.AddNamedSystem("goals", GoalSource(scenario.goals))
+    goals = builder.AddNamedSystem("goals", GoalSource(scenario.task.goals))
     builder.Connect(goals.get_goals_output_port(), planner.get_goals_input_port())
     builder.Connect(stack.estimator.get_measured_state_output_port(),
                     planner.get_measured_state_input_port())

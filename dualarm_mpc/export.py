@@ -46,7 +46,7 @@ class MpsExport:
         write_mps(form, self.directory / name)
         self.entries.append({
             "step": tried.step, "horizon": res.horizon,
-            "objects": [self.scenario.objects[j].name for j in spec.objects],
+            "objects": [self.scenario.task.objects[j].name for j in spec.objects],
             "m_o": spec.m_o, "status": res.status.value,
             "cost": res.cost if res.status.has_solution else None,
             "file": name, "variables": len(form.c), "constraints": form.A.shape[0],
@@ -57,8 +57,8 @@ class MpsExport:
     def _write_index(self) -> None:
         solver = self.scenario.solver
         index = {
-            "scenario": self.scenario.name, "rule": self.scenario.rule,
-            "delivery": self.scenario.delivery, "search": solver.search,
+            "scenario": self.scenario.name, "rule": self.scenario.task.rule,
+            "delivery": self.scenario.task.delivery, "search": solver.search,
             "solver": solver.backend,
             "exported": "the monolithic MILP of each horizon tried (minimize; binaries are "
                         "integer columns in [0, 1]); status and cost are the planner's there: "

@@ -62,7 +62,7 @@ def solver_options(scenario: Scenario, time_limit_s: float | None = None) -> Sol
 def _resolver(spec: Specification, x: program.HorizonVariables, state: State, scenario: Scenario):
     """Atoms of the formulas → program variables (objects outside the step are constants)."""
     local = {j + 1: n for n, j in enumerate(spec.objects)}
-    goals = [Rect.of(scenario.goals[o.goal]) for o in scenario.objects]
+    goals = [Rect.of(scenario.task.goals[o.goal]) for o in scenario.task.objects]
 
     def resolve(atom: Atom, k: int) -> Literal:
         idx = atom.index
@@ -105,13 +105,13 @@ class HorizonProgram:
         reach = reachability(self.model, self.local_state, horizon)
         self.prog = MathematicalProgram()
         x = self.x = program.new_horizon_variables(self.prog, horizon, len(self.objects))
-        pruning = scenario.pruning if pruning is None else pruning
+        pruning = scenario.task.pruning if pruning is None else pruning
         program.add_bounds(self.prog, x, self.model, self.local_state, reach, pruning)
         program.add_dynamics(self.prog, x, self.model)
         program.add_picking(self.prog, x, self.model, self.local_state, reach)
         program.add_system_constraints(self.prog, x, self.model)
         program.add_goal_atoms(self.prog, x, self.model, reach)
-        self._hand_cost = program.add_cost(self.prog, x, scenario.state_weight)
+        self._hand_cost = program.add_cost(self.prog, x, scenario.task.state_weight)
         self._forms: dict[Specification, StandardForm] = {}
 
     @functools.cached_property

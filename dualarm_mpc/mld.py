@@ -99,9 +99,9 @@ class State:
     def initial(scenario: Scenario) -> State:
         n = scenario.n_objects
         return State(
-            hand_pos=np.array(scenario.hand_start, float),
+            hand_pos=np.array(scenario.robot.hand_start, float),
             hand_vel=np.zeros((N_HANDS, 2)),
-            object_pos=np.array([o.position for o in scenario.objects], float),
+            object_pos=np.array([o.position for o in scenario.task.objects], float),
             object_vel=np.zeros((n, 2)),
             grasp=np.zeros((N_HANDS, n), int),
         )
@@ -143,13 +143,13 @@ class Model:
         """The model of ``objects`` (scenario indices; all by default)."""
         objects = list(range(scenario.n_objects)) if objects is None else objects
         return Model(
-            dt=scenario.dt,
-            v_max=scenario.max_speed,
-            u_max=scenario.max_force,
-            hand_gap=scenario.hand_gap,
-            workspace=Rect.of(scenario.workspace),
+            dt=scenario.robot.dt,
+            v_max=scenario.robot.max_speed,
+            u_max=scenario.robot.max_force,
+            hand_gap=scenario.robot.hand_gap,
+            workspace=Rect.of(scenario.robot.workspace),
             goals=tuple(target_box(scenario, j) for j in objects),
-            grasp_half=np.array([scenario.objects[j].grasp_half_size for j in objects], float),
+            grasp_half=np.array([scenario.task.objects[j].grasp_half_size for j in objects], float),
         )
 
     def object_region(self, start: np.ndarray) -> Rect:
@@ -165,14 +165,14 @@ def target_box(scenario: Scenario, j: int) -> Rect:
     """Where the planner aims object j: its goal box less ``goal_margin``; with ``goal_slots``,
     only the j-th of side-by-side columns of the goal, one per object of that goal, so that
     objects thrown later do not run into those already delivered."""
-    goal = scenario.objects[j].goal
-    box = Rect.of(scenario.goals[goal])
-    if scenario.goal_slots:
-        sharing = [n for n, o in enumerate(scenario.objects) if o.goal == goal]
+    goal = scenario.task.objects[j].goal
+    box = Rect.of(scenario.task.goals[goal])
+    if scenario.task.goal_slots:
+        sharing = [n for n, o in enumerate(scenario.task.objects) if o.goal == goal]
         width = (box.hi[0] - box.lo[0]) / len(sharing)
         x0 = box.lo[0] + width * sharing.index(j)
         box = Rect(np.array([x0, box.lo[1]]), np.array([x0 + width, box.hi[1]]))
-    return box.shrink(scenario.goal_margin)
+    return box.shrink(scenario.task.goal_margin)
 
 
 # --- reachability (pruning, §IV-C.2) ------------------------------------------------------------

@@ -129,13 +129,13 @@ class Replanner:
         self._solve_horizon = solve_horizon if solve is None else solve
         # Wall time a replan may hold the simulation: one control period at most.
         budget = scenario.solver.replan_budget_s
-        self._budget_s = BUDGET_SHARE * scenario.dt if budget is None else budget
+        self._budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
         self._rules = rule_formulas(scenario)
 
     def initial_state(self) -> MpcState:
         sc = self._scenario
-        return MpcState(plan=empty_plan(sc.n_objects, np.array(sc.hand_start)),
+        return MpcState(plan=empty_plan(sc.n_objects, np.array(sc.robot.hand_start)),
                         delivered_time=(None,) * sc.n_objects)
 
     def close(self, state: MpcState | None = None) -> None:
@@ -166,7 +166,7 @@ class Replanner:
         periods), or stop it while the robot moves (its start state is gone by then)."""
         if s.search is not None:
             job, future = s.search.job, s.search.future
-            if job.scenario.goals != goals or not self._still(job, measured):
+            if job.scenario.task.goals != goals or not self._still(job, measured):
                 _abandon(s)  # the world moved on: plan afresh below
                 s = dataclasses.replace(s, search=None)
             elif not _wait(future, self._budget_s):
@@ -190,7 +190,8 @@ class Replanner:
     def _prepare(self, t: float, s: MpcState, measured: Measured, goals: Goals, wall0: float):
         """What the replan at ``t`` must solve (a :class:`_Job`), or the new state and record at
         once when nothing is left to solve (every object delivered, or the rest out of reach)."""
-        sc = dataclasses.replace(self._scenario, goals=goals)
+        base = self._scenario
+        sc = dataclasses.replace(base, task=dataclasses.replace(base.task, goals=goals))
         state = self._committed_state(t, s, measured)
         # A held object counts once its plan is over, or when that plan keeps it where it is.
         resting = _resting(sc, state, (t >= s.horizon_end - 1e-9) | _kept(s.plan, t))
@@ -202,18 +203,18 @@ class Replanner:
         lost = _lost(sc, state) & ~done
         remaining = [j for j in range(sc.n_objects) if not done[j] and not lost[j]]
         if not remaining and lost.any():
-            names = ", ".join(sc.objects[j].name for j in np.flatnonzero(lost))
-            return _record(s, t, wall0, "stuck", plan=_hold(t, sc.dt, state), step_objects=(),
+            names = ", ".join(sc.task.objects[j].name for j in np.flatnonzero(lost))
+            return _record(s, t, wall0, "stuck", plan=_hold(t, sc.robot.dt, state), step_objects=(),
                            delivered_time=delivered_time,
                            note=f"{names} can no longer reach the goal")
         if not remaining:
-            return _record(s, t, wall0, "done", plan=_hold(t, sc.dt, state), step_objects=(),
+            return _record(s, t, wall0, "done", plan=_hold(t, sc.robot.dt, state), step_objects=(),
                            delivered_time=delivered_time)
         new_step = (not s.step_objects or n_done >= s.step_target
                     or not set(s.step_objects) & set(remaining))
         if new_step:
             objects = select_objects(sc, state, remaining)
-            target = n_done + min(sc.m_o, len(objects))
+            target = n_done + min(sc.task.m_o, len(objects))
             grasp_start = None
         else:
             # Delivered ones leave the step (a hand still holding one lets go): else they would
@@ -261,9 +262,9 @@ class Replanner:
             return _record(s, t, wall0, status, res, note="kept the previous plan", **job.changes)
         objects = list(job.spec.objects)
         traj = embed_step(sc, job.state, objects, res.trajectory)
-        plan = TimedTrajectory(t, sc.dt, traj)
+        plan = TimedTrajectory(t, sc.robot.dt, traj)
         return _record(s, t, wall0, res.status.value, res, plan=plan,
-                       horizon_end=t + res.horizon * sc.dt,
+                       horizon_end=t + res.horizon * sc.robot.dt,
                        grasp_start=(tuple(objects), res.trajectory.grasp), **job.changes)
 
     def _still(self, job: _Job, m: Measured) -> bool:
@@ -284,9 +285,9 @@ class Replanner:
         replan and the robot dithers). Larger deviations (a knock, a short throw, a failed grasp)
         are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest."""
         sc = self._scenario
-        ws = Rect.of(sc.workspace)
+        ws = Rect.of(sc.robot.workspace)
         hand_pos = np.clip(m.hand_pos, ws.lo, ws.hi)
-        hand_vel = np.clip(m.hand_vel, -sc.max_speed, sc.max_speed)
+        hand_vel = np.clip(m.hand_vel, -sc.robot.max_speed, sc.robot.max_speed)
         obj_pos, obj_vel = np.array(m.object_pos, float), np.array(m.object_vel, float)
         obj_vel[np.linalg.norm(obj_vel, axis=1) < STILL_SPEED] = 0.0
         k = int(np.floor((t - s.plan.t0) / s.plan.dt + 1e-9))
@@ -304,7 +305,7 @@ class Replanner:
         else:  # the plan is over: what the gripper holds
             grasp = np.asarray(m.grasp).round().astype(int)
         # A grasp of an object no longer at the hand (knocked away, or never caught) is void.
-        half = np.array([o.grasp_half_size for o in sc.objects])
+        half = np.array([o.grasp_half_size for o in sc.task.objects])
         reach = np.abs(m.hand_pos[:, None] - obj_pos[None]).max(axis=2)  # (2, N)
         grasp[reach > half[None] + GRASP_SLACK] = 0
         for i, j in zip(*np.nonzero(grasp), strict=True):
@@ -338,8 +339,9 @@ def _lost(sc: Scenario, state: State) -> np.ndarray:
 def _arriving(sc: Scenario, state: State) -> np.ndarray:
     """Unheld objects whose one-step slide ends in their goals (docs/model.md, "The one-step
     slide"; on the robot the table's drag reproduces it)."""
-    landing = state.object_pos + sc.dt * state.object_vel
-    inside = np.array([in_goal(landing[j], sc.goals[o.goal]) for j, o in enumerate(sc.objects)])
+    landing = state.object_pos + sc.robot.dt * state.object_vel
+    inside = np.array([in_goal(landing[j], sc.task.goals[o.goal])
+                       for j, o in enumerate(sc.task.objects)])
     moving = np.linalg.norm(state.object_vel, axis=1) > 0
     return inside & moving & ~state.grasp.any(axis=0)
 
@@ -348,8 +350,8 @@ def _resting(sc: Scenario, state: State, released: np.ndarray | bool) -> np.ndar
     """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
     counts where ``released`` (per object, or for all): the hand has nothing left to do with it
     and lets go when it moves on."""
-    inside = np.array([in_goal(state.object_pos[j], sc.goals[o.goal])
-                       for j, o in enumerate(sc.objects)])
+    inside = np.array([in_goal(state.object_pos[j], sc.task.goals[o.goal])
+                       for j, o in enumerate(sc.task.objects)])
     return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
 
 

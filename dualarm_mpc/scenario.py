@@ -1,6 +1,9 @@
 """Scenario: the typed description of one table-top task (Table I of the paper), loaded from YAML.
 
-A scenario file is read into the dataclasses below; every field can then be overridden by a YAML
+A :class:`Scenario` groups its fields as :class:`Robot`, :class:`Table`, :class:`Task`,
+:class:`SolverOptions` and a list of :class:`Event`, each checking its own values; the file keeps
+them flat (``max_speed``, ``m_o``), and :data:`YAML_FIELDS` maps each key to its group's field.
+A scenario file is read into these dataclasses; every field can then be overridden by a YAML
 mapping (the CLI's ``--set``), whose keys may be paths in the form errors are reported in
 (``solver.time_limit_s: 5``, ``objects[3].position: [0.1, 0.2]``). Any bad file or value raises
 :class:`ScenarioError` naming the field, e.g. ``objects[3].position[1]: expected a number, got
@@ -57,6 +60,23 @@ class RandomObjects:
     # interpenetrating and the simulation flings them apart.
     min_separation: float = 0.0
 
+    def validate(self) -> None:
+        _box(self.region, "random_objects.region")
+        if not 1 <= self.count <= MAX_RANDOM_OBJECTS:
+            raise ScenarioError(f"random_objects.count: must be 1..{MAX_RANDOM_OBJECTS}, got "
+                                f"{self.count}")
+        if self.min_separation > 0:  # how many points that far apart (per axis) fit the region
+            fit = [(hi - lo) / self.min_separation for lo, hi in (self.region[:2],
+                                                                  self.region[2:])]
+            room = math.prod(math.floor(n) + 1 for n in fit) if all(map(math.isfinite, fit)) \
+                else math.inf
+            if self.count > room:
+                raise ScenarioError(f"random_objects: {self.count} objects {self.min_separation} "
+                                    f"m apart do not fit in {self.region} (at most {room})")
+        if self.grasp_half_size <= 0:
+            raise ScenarioError(f"random_objects.grasp_half_size: must be positive, got "
+                                f"{self.grasp_half_size}")
+
 
 @dataclass
 class SolverOptions:
@@ -78,6 +98,27 @@ class SolverOptions:
     # robot follows the plan in force while the search goes on.
     replan_budget_s: float | None = None
 
+    def validate(self) -> None:
+        if self.backend not in SOLVER_BACKENDS:
+            raise ScenarioError(f"solver.backend: unknown solver {self.backend!r} (one of "
+                                f"{', '.join(SOLVER_BACKENDS)})")
+        if self.search not in ("skeleton", "monolithic"):
+            raise ScenarioError(f"solver.search: expected 'skeleton' or 'monolithic', got "
+                                f"{self.search!r}")
+        if self.handover not in ("auto", "always", "never"):
+            raise ScenarioError(f"solver.handover: expected 'auto', 'always' or 'never', got "
+                                f"{self.handover!r}")
+        if self.time_limit_s <= 0:
+            raise ScenarioError("solver.time_limit_s: must be positive")
+        if self.mip_rel_gap < 0:
+            raise ScenarioError(f"solver.mip_rel_gap: must be >= 0, got {self.mip_rel_gap}")
+        for key in ("max_horizon", "threads", "workers"):
+            if getattr(self, key) < 1:
+                raise ScenarioError(f"solver.{key}: must be >= 1, got {getattr(self, key)}")
+        if self.max_horizon > MAX_HORIZON:
+            raise ScenarioError(f"solver.max_horizon: at most {MAX_HORIZON}, got "
+                                f"{self.max_horizon}")
+
 
 @dataclass
 class Event:
@@ -89,20 +130,85 @@ class Event:
     position: list[float] = field(default_factory=list)  # move_object: new [x, y]
     box: list[float] = field(default_factory=list)  # move_goal: new [xmin, xmax, ymin, ymax]
 
+    def validate(self, path: str, task: Task) -> None:
+        """``path``: ``events[e]``; the target must be one of ``task``'s objects or goals."""
+        if self.time < 0:
+            raise ScenarioError(f"{path}.time: must be >= 0, got {self.time}")
+        if self.kind == "move_object":
+            if self.target not in {o.name for o in task.objects}:
+                raise ScenarioError(f"{path}.target: no object named {self.target!r}")
+            _point(self.position, f"{path}.position")
+        elif self.kind == "move_goal":
+            if self.target not in task.goals:
+                raise ScenarioError(f"{path}.target: no goal named {self.target!r}")
+            _box(self.box, f"{path}.box")
+        else:
+            raise ScenarioError(f"{path}.kind: must be 'move_object' or 'move_goal'")
+
 
 @dataclass
-class Scenario:
-    """Everything the planner and the simulation need; units are metres, seconds and Δt steps."""
+class Robot:
+    """The two arms (Table I): Δt, the hands' range and start, the arm bases, the bounds on |v|
+    and |u|, eq. (16)'s gap."""
 
-    name: str = "scenario"
     dt: float = 1.0
-    workspace: list[float] = field(default_factory=lambda: [-0.9, 0.9, 0.0, 0.9])
+    workspace: list[float] = field(default_factory=lambda: [-0.9, 0.9, 0.0, 0.9])  # hand range
     hand_start: list[list[float]] = field(default_factory=lambda: [[0.1, 0.0], [-0.1, 0.0]])
     # In front of the hand range, not at Table I's (±0.3, 0.3): see docs/drake.md
     arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, -0.8], [-0.3, -0.8]])
     max_speed: float = 0.2
     max_force: float = 0.1
     hand_gap: float = 0.1  # eq. (16): x_arm2 + hand_gap <= x_arm1
+
+    def validate(self) -> None:
+        for key in ("dt", "max_speed", "max_force"):
+            if getattr(self, key) <= 0:
+                raise ScenarioError(f"{key}: must be positive, got {getattr(self, key)!r}")
+        if self.hand_gap < 0:
+            raise ScenarioError(f"hand_gap: must be >= 0, got {self.hand_gap!r}")
+        _box(self.workspace, "workspace")
+        for name, points in (("hand_start", self.hand_start), ("arm_bases", self.arm_bases)):
+            if len(points) != 2:
+                raise ScenarioError(f"{name}: expected two points (arm 1 = right, arm 2 = left)")
+            for i, p in enumerate(points):
+                _point(p, f"{name}[{i}]")
+        xmin, xmax, ymin, ymax = self.workspace
+        for i, (x, y) in enumerate(self.hand_start):
+            if not (xmin <= x <= xmax and ymin <= y <= ymax):
+                raise ScenarioError(
+                    f"hand_start[{i}]: {[x, y]} is outside workspace {self.workspace}")
+        (x1, _), (x2, _) = self.hand_start
+        if x2 + self.hand_gap > x1 + 1e-9:
+            raise ScenarioError(
+                f"hand_start: eq. (16) needs x_arm2 + hand_gap <= x_arm1 (arm 1 = right), got "
+                f"x_arm1 = {x1}, x_arm2 = {x2}, hand_gap = {self.hand_gap}")
+
+
+@dataclass
+class Table:
+    """The simulated table and boxes (Drake only: the planner's model has neither)."""
+
+    friction: float = 0.0  # Coulomb μ of table and objects
+    # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
+    # one-step slide when τ = Δt (docs/model.md, "The one-step slide"). None: Coulomb only.
+    slide_time_constant: float | None = 1.0
+    object_size: float = 0.05
+
+    def validate(self) -> None:
+        if self.object_size <= 0:
+            raise ScenarioError(f"object_size: must be positive, got {self.object_size!r}")
+        if self.slide_time_constant is not None and self.slide_time_constant <= 0:
+            raise ScenarioError(
+                f"slide_time_constant: must be positive, got {self.slide_time_constant}")
+        if self.friction < 0:
+            raise ScenarioError(f"table_friction: must be >= 0, got {self.friction}")
+
+
+@dataclass
+class Task:
+    """What to deliver where (goals, objects), under which rules, in sequential steps of
+    (m_o, n_o), and how the planner aims and weighs its plans."""
+
     goals: dict[str, list[float]] = field(default_factory=dict)
     objects: list[ObjectSpec] = field(default_factory=list)
     random_objects: RandomObjects | None = None
@@ -115,19 +221,144 @@ class Scenario:
     rules: list[str] = field(default_factory=list)  # extra LTL rules, text syntax
     state_weight: float = 0.0  # optional ‖v_hand‖₁ penalty next to cost (17)
     pruning: bool = True
-    solver: SolverOptions = field(default_factory=SolverOptions)
-    events: list[Event] = field(default_factory=list)
-    table_friction: float = 0.0  # Coulomb μ of table and objects
-    # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
-    # one-step slide when τ = Δt (docs/model.md, "The one-step slide"). None: Coulomb only.
-    slide_time_constant: float | None = 1.0
     goal_margin: float = 0.0  # the planner aims this far inside each goal box (closed loop)
     goal_slots: bool = False  # aim each object at its own column of its goal (closed loop)
-    object_size: float = 0.05
+
+    def validate(self) -> None:
+        if self.goal_margin < 0:
+            raise ScenarioError(f"goal_margin: must be >= 0, got {self.goal_margin}")
+        if self.seed < 0:
+            raise ScenarioError(f"seed: must be >= 0, got {self.seed}")
+        if self.random_objects is not None:
+            self.random_objects.validate()
+        if not self.goals:
+            raise ScenarioError("goals: at least one goal region is needed")
+        for name, box in self.goals.items():
+            _box(box, f"goals.{name}")
+            if 2 * self.goal_margin >= min(box[1] - box[0], box[3] - box[2]):
+                raise ScenarioError(f"goal_margin: {self.goal_margin} leaves nothing of "
+                                    f"goals.{name}")
+        if not self.objects:
+            raise ScenarioError("objects: no objects (give objects or random_objects)")
+        names = set()
+        for j, o in enumerate(self.objects):
+            if not o.position:
+                raise ScenarioError(f"objects[{j}].position: missing (give [x, y])")
+            _point(o.position, f"objects[{j}].position")
+            if o.goal not in self.goals:
+                raise ScenarioError(f"objects[{j}].goal: {o.goal!r} is not a goal (goals: "
+                                    f"{', '.join(self.goals)})")
+            if o.grasp_half_size <= 0:
+                raise ScenarioError(f"objects[{j}].grasp_half_size: must be positive")
+            if not o.name or o.name in names:
+                raise ScenarioError(f"objects[{j}].name: missing or repeated name {o.name!r}")
+            names.add(o.name)
+        if self.goal_slots:
+            for name, box in self.goals.items():
+                count = sum(o.goal == name for o in self.objects)
+                if count and (box[1] - box[0]) / count <= 2 * self.goal_margin:
+                    raise ScenarioError(f"goal_slots: goals.{name} is too narrow for {count} "
+                                        f"slots with goal_margin {self.goal_margin}")
+        if self.rule not in (1, 2):
+            raise ScenarioError(f"rule: must be 1 (no-throw) or 2 (no-juggle, no-swap), got "
+                                f"{self.rule!r}")
+        if self.delivery not in ("reach", "rest"):
+            raise ScenarioError(f"delivery: must be 'reach' or 'rest', got {self.delivery!r}")
+        if self.task_form not in ("counting", "subsets"):
+            raise ScenarioError(f"task_form: must be 'counting' or 'subsets', got "
+                                f"{self.task_form!r}")
+        if not 1 <= self.m_o <= self.n_o:
+            raise ScenarioError(f"m_o: need 1 <= m_o <= n_o, got m_o={self.m_o}, n_o={self.n_o}")
+        for n, text in enumerate(self.rules):
+            try:
+                parse(text)
+            except LTLSyntaxError as err:
+                raise ScenarioError(f"rules[{n}]: {err}") from err
+
+
+@dataclass
+class Scenario:
+    """Everything the planner and the simulation need; units are metres, seconds and Δt steps.
+    The YAML names each field flat (``max_speed``, not ``robot.max_speed``): :data:`YAML_FIELDS`."""
+
+    name: str = "scenario"
+    robot: Robot = field(default_factory=Robot)
+    table: Table = field(default_factory=Table)
+    task: Task = field(default_factory=Task)
+    solver: SolverOptions = field(default_factory=SolverOptions)
+    events: list[Event] = field(default_factory=list)
 
     @property
     def n_objects(self) -> int:
-        return len(self.objects)
+        return len(self.task.objects)
+
+    def validate(self) -> None:
+        """Check values that types alone cannot; each error names its YAML field."""
+        self.robot.validate()
+        self.table.validate()
+        self.task.validate()
+        self.solver.validate()
+        for e, event in enumerate(self.events):
+            event.validate(f"events[{e}]", self.task)
+        self._check_reach()
+
+    def _check_reach(self) -> None:
+        """Objects no hand can move: off the table (beyond the hand range widened by the grasp
+        box, eq. 11, and not in their goal), or farther from their goal than an object can travel
+        in one horizon (a held or sliding object moves at most max_speed·dt per step and axis)."""
+        robot, task, max_horizon = self.robot, self.task, self.solver.max_horizon
+        xmin, xmax, ymin, ymax = robot.workspace
+        step = robot.max_speed * robot.dt
+        for j, o in enumerate(task.objects):
+            (x, y), half = o.position, o.grasp_half_size
+            gx0, gx1, gy0, gy1 = task.goals[o.goal]
+            away = max(gx0 - x, x - gx1, gy0 - y, y - gy1, 0.0)  # per axis, as the speed bound
+            reach = xmin - half <= x <= xmax + half and ymin - half <= y <= ymax + half
+            if away > 0 and not reach:
+                drawn = "" if task.random_objects is None else " (drawn from random_objects.region)"
+                raise ScenarioError(
+                    f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the "
+                    f"hands' reach (workspace {robot.workspace} widened by its grasp_half_size "
+                    f"{half}) and outside its goal {o.goal}")
+            if away > step * max_horizon + 1e-9:
+                raise ScenarioError(
+                    f"dt: with dt = {robot.dt} s and max_speed = {robot.max_speed} m/s an object "
+                    f"moves at most {step:.3g} m per step, {step * max_horizon:.3g} m in "
+                    f"solver.max_horizon = {max_horizon} steps, but {o.name} is {away:.3g} m "
+                    f"from its goal {o.goal}: raise dt, max_speed or solver.max_horizon")
+
+
+# The scenario file is one flat mapping: each key and the field it sets. The loader reads the file
+# through this table only, so the file format and the error paths are the YAML keys.
+YAML_FIELDS = {
+    "name": "name",
+    "dt": "robot.dt",
+    "workspace": "robot.workspace",
+    "hand_start": "robot.hand_start",
+    "arm_bases": "robot.arm_bases",
+    "max_speed": "robot.max_speed",
+    "max_force": "robot.max_force",
+    "hand_gap": "robot.hand_gap",
+    "table_friction": "table.friction",
+    "slide_time_constant": "table.slide_time_constant",
+    "object_size": "table.object_size",
+    "goals": "task.goals",
+    "objects": "task.objects",
+    "random_objects": "task.random_objects",
+    "seed": "task.seed",
+    "rule": "task.rule",
+    "m_o": "task.m_o",
+    "n_o": "task.n_o",
+    "delivery": "task.delivery",
+    "task_form": "task.task_form",
+    "rules": "task.rules",
+    "state_weight": "task.state_weight",
+    "pruning": "task.pruning",
+    "goal_margin": "task.goal_margin",
+    "goal_slots": "task.goal_slots",
+    "solver": "solver",
+    "events": "events",
+}
 
 
 # --- loading -----------------------------------------------------------------------------------
@@ -141,7 +372,7 @@ def _convert(value, hint, path: str):
         return None if value is None else _convert(value, args[0], path)
     if dataclasses.is_dataclass(hint):
         if not isinstance(value, dict):
-            raise ScenarioError(f"{path or 'scenario'}: expected a mapping, got {_show(value)}")
+            raise ScenarioError(f"{path}: expected a mapping, got {_show(value)}")
         return _build(hint, value, path)
     if origin is list:
         (item,) = typing.get_args(hint)
@@ -198,17 +429,30 @@ def _update(current, value, hint, path: str):
 
 def _build(cls, data: dict, path: str, base=None):
     hints = typing.get_type_hints(cls)
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(str(k) for k in set(data) - names)
-    if unknown:
-        where = f"{path}." if path else ""
-        known = ", ".join(sorted(names))
-        raise ScenarioError(f"{where}{unknown[0]}: unknown field (known: {known})")
+    _known(data, [f.name for f in dataclasses.fields(cls)], f"{path}.")
     obj = base if base is not None else cls()
     for key, value in data.items():
-        sub = f"{path}.{key}" if path else key
-        setattr(obj, key, _update(getattr(obj, key), value, hints[key], sub))
+        setattr(obj, key, _update(getattr(obj, key), value, hints[key], f"{path}.{key}"))
     return obj
+
+
+def _build_scenario(data: dict, base: Scenario | None = None) -> Scenario:
+    """``data``, a scenario file's flat mapping, set into ``base``'s groups (YAML_FIELDS)."""
+    _known(data, YAML_FIELDS, "")
+    scenario = base if base is not None else Scenario()
+    for key, value in data.items():
+        *group, name = YAML_FIELDS[key].split(".")
+        owner = getattr(scenario, group[0]) if group else scenario
+        hint = typing.get_type_hints(type(owner))[name]
+        setattr(owner, name, _update(getattr(owner, name), value, hint, key))
+    return scenario
+
+
+def _known(data: dict, names, prefix: str) -> None:
+    unknown = sorted(str(k) for k in set(data) - set(names))
+    if unknown:
+        known = ", ".join(sorted(names))
+        raise ScenarioError(f"{prefix}{unknown[0]}: unknown field (known: {known})")
 
 
 _SHORT = reprlib.Repr()
@@ -304,7 +548,7 @@ def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Sce
         raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
     data = _yaml(text, str(path))
     _one_source_of_objects(data, drawn=False)
-    return apply_overrides(_build(Scenario, data, ""), overrides)
+    return apply_overrides(_build_scenario(data), overrides)
 
 
 def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:
@@ -312,16 +556,15 @@ def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenari
     scenario = copy.deepcopy(scenario)
     overrides = _yaml(overrides, "override") if isinstance(overrides, str) else \
         _paths(overrides or {})
+    task = scenario.task
     if overrides:
-        _one_source_of_objects(overrides, drawn=scenario.random_objects is not None)
-        _build(Scenario, overrides, "", scenario)
-    if scenario.random_objects is not None and scenario.goals:
+        _one_source_of_objects(overrides, drawn=task.random_objects is not None)
+        _build_scenario(overrides, scenario)
+    if task.random_objects is not None and task.goals:
         # the objects follow from (random_objects, seed); with no goals, validate says so
-        _check_random_objects(scenario.random_objects)
-        scenario.objects = random_objects(
-            scenario.random_objects, list(scenario.goals), scenario.seed
-        )
-    validate(scenario)
+        task.random_objects.validate()
+        task.objects = random_objects(task.random_objects, list(task.goals), task.seed)
+    scenario.validate()
     return scenario
 
 
@@ -397,154 +640,3 @@ def _box(value: list[float], path: str) -> None:
 def _point(value: list[float], path: str) -> None:
     if len(value) != 2:
         raise ScenarioError(f"{path}: expected [x, y], got {value!r}")
-
-
-def _check_random_objects(r: RandomObjects) -> None:
-    _box(r.region, "random_objects.region")
-    if not 1 <= r.count <= MAX_RANDOM_OBJECTS:
-        raise ScenarioError(f"random_objects.count: must be 1..{MAX_RANDOM_OBJECTS}, got {r.count}")
-    if r.min_separation > 0:  # how many points that far apart (per axis) fit in the region
-        fit = [(hi - lo) / r.min_separation for lo, hi in (r.region[:2], r.region[2:])]
-        room = math.prod(math.floor(n) + 1 for n in fit) if all(map(math.isfinite, fit)) \
-            else math.inf
-        if r.count > room:
-            raise ScenarioError(f"random_objects: {r.count} objects {r.min_separation} m apart do "
-                                f"not fit in {r.region} (at most {room})")
-    if r.grasp_half_size <= 0:
-        raise ScenarioError(
-            f"random_objects.grasp_half_size: must be positive, got {r.grasp_half_size}"
-        )
-
-
-def validate(s: Scenario) -> None:
-    """Check values that types alone cannot; each error names its field."""
-    for key in ("dt", "max_speed", "max_force", "object_size"):
-        if getattr(s, key) <= 0:
-            raise ScenarioError(f"{key}: must be positive, got {getattr(s, key)!r}")
-    if s.slide_time_constant is not None and s.slide_time_constant <= 0:
-        raise ScenarioError(f"slide_time_constant: must be positive, got {s.slide_time_constant}")
-    if s.table_friction < 0:
-        raise ScenarioError(f"table_friction: must be >= 0, got {s.table_friction}")
-    if s.goal_margin < 0:
-        raise ScenarioError(f"goal_margin: must be >= 0, got {s.goal_margin}")
-    if s.hand_gap < 0:
-        raise ScenarioError(f"hand_gap: must be >= 0, got {s.hand_gap!r}")
-    if s.seed < 0:
-        raise ScenarioError(f"seed: must be >= 0, got {s.seed}")
-    _box(s.workspace, "workspace")
-    for name, key in (("hand_start", s.hand_start), ("arm_bases", s.arm_bases)):
-        if len(key) != 2:
-            raise ScenarioError(f"{name}: expected two points (arm 1 = right, arm 2 = left)")
-        for i, p in enumerate(key):
-            _point(p, f"{name}[{i}]")
-    workspace = s.workspace
-    for i, (x, y) in enumerate(s.hand_start):
-        if not (workspace[0] <= x <= workspace[1] and workspace[2] <= y <= workspace[3]):
-            raise ScenarioError(f"hand_start[{i}]: {[x, y]} is outside workspace {workspace}")
-    if s.hand_start[1][0] + s.hand_gap > s.hand_start[0][0] + 1e-9:
-        raise ScenarioError(
-            f"hand_start: eq. (16) needs x_arm2 + hand_gap <= x_arm1 (arm 1 = right), got "
-            f"x_arm1 = {s.hand_start[0][0]}, x_arm2 = {s.hand_start[1][0]}, hand_gap = {s.hand_gap}"
-        )
-    if s.random_objects is not None:
-        _check_random_objects(s.random_objects)
-    if not s.goals:
-        raise ScenarioError("goals: at least one goal region is needed")
-    for name, box in s.goals.items():
-        _box(box, f"goals.{name}")
-        if 2 * s.goal_margin >= min(box[1] - box[0], box[3] - box[2]):
-            raise ScenarioError(f"goal_margin: {s.goal_margin} leaves nothing of goals.{name}")
-    if not s.objects:
-        raise ScenarioError("objects: no objects (give objects or random_objects)")
-    names = set()
-    for j, o in enumerate(s.objects):
-        if not o.position:
-            raise ScenarioError(f"objects[{j}].position: missing (give [x, y])")
-        _point(o.position, f"objects[{j}].position")
-        if o.goal not in s.goals:
-            raise ScenarioError(
-                f"objects[{j}].goal: {o.goal!r} is not a goal (goals: {', '.join(s.goals)})"
-            )
-        if o.grasp_half_size <= 0:
-            raise ScenarioError(f"objects[{j}].grasp_half_size: must be positive")
-        if not o.name or o.name in names:
-            raise ScenarioError(f"objects[{j}].name: missing or repeated name {o.name!r}")
-        names.add(o.name)
-    if s.goal_slots:
-        for name, box in s.goals.items():
-            count = sum(o.goal == name for o in s.objects)
-            if count and (box[1] - box[0]) / count <= 2 * s.goal_margin:
-                raise ScenarioError(f"goal_slots: goals.{name} is too narrow for {count} slots "
-                                    f"with goal_margin {s.goal_margin}")
-    if s.rule not in (1, 2):
-        raise ScenarioError(f"rule: must be 1 (no-throw) or 2 (no-juggle, no-swap), got {s.rule!r}")
-    if s.delivery not in ("reach", "rest"):
-        raise ScenarioError(f"delivery: must be 'reach' or 'rest', got {s.delivery!r}")
-    if s.task_form not in ("counting", "subsets"):
-        raise ScenarioError(f"task_form: must be 'counting' or 'subsets', got {s.task_form!r}")
-    if not 1 <= s.m_o <= s.n_o:
-        raise ScenarioError(f"m_o: need 1 <= m_o <= n_o, got m_o={s.m_o}, n_o={s.n_o}")
-    if s.solver.backend not in SOLVER_BACKENDS:
-        raise ScenarioError(f"solver.backend: unknown solver {s.solver.backend!r} (one of "
-                            f"{', '.join(SOLVER_BACKENDS)})")
-    if s.solver.search not in ("skeleton", "monolithic"):
-        raise ScenarioError(f"solver.search: expected 'skeleton' or 'monolithic', got "
-                            f"{s.solver.search!r}")
-    if s.solver.handover not in ("auto", "always", "never"):
-        raise ScenarioError(f"solver.handover: expected 'auto', 'always' or 'never', got "
-                            f"{s.solver.handover!r}")
-    if s.solver.time_limit_s <= 0:
-        raise ScenarioError("solver.time_limit_s: must be positive")
-    if s.solver.mip_rel_gap < 0:
-        raise ScenarioError(f"solver.mip_rel_gap: must be >= 0, got {s.solver.mip_rel_gap}")
-    for key in ("max_horizon", "threads", "workers"):
-        if getattr(s.solver, key) < 1:
-            raise ScenarioError(f"solver.{key}: must be >= 1, got {getattr(s.solver, key)}")
-    if s.solver.max_horizon > MAX_HORIZON:
-        raise ScenarioError(f"solver.max_horizon: at most {MAX_HORIZON}, got "
-                            f"{s.solver.max_horizon}")
-    for n, text in enumerate(s.rules):
-        try:
-            parse(text)
-        except LTLSyntaxError as err:
-            raise ScenarioError(f"rules[{n}]: {err}") from err
-    for e, ev in enumerate(s.events):
-        if ev.time < 0:
-            raise ScenarioError(f"events[{e}].time: must be >= 0, got {ev.time}")
-        if ev.kind == "move_object":
-            if ev.target not in names:
-                raise ScenarioError(f"events[{e}].target: no object named {ev.target!r}")
-            _point(ev.position, f"events[{e}].position")
-        elif ev.kind == "move_goal":
-            if ev.target not in s.goals:
-                raise ScenarioError(f"events[{e}].target: no goal named {ev.target!r}")
-            _box(ev.box, f"events[{e}].box")
-        else:
-            raise ScenarioError(f"events[{e}].kind: must be 'move_object' or 'move_goal'")
-    _check_reach(s)
-
-
-def _check_reach(s: Scenario) -> None:
-    """Objects no hand can move: off the table (beyond the hand range widened by the grasp box,
-    eq. 11, and not in their goal), or farther from their goal than an object can travel in one
-    horizon (a held or sliding object moves at most max_speed·dt per step and axis)."""
-    xmin, xmax, ymin, ymax = s.workspace
-    step = s.max_speed * s.dt
-    for j, o in enumerate(s.objects):
-        (x, y), half = o.position, o.grasp_half_size
-        gx0, gx1, gy0, gy1 = s.goals[o.goal]
-        away = max(gx0 - x, x - gx1, gy0 - y, y - gy1, 0.0)  # per axis, as the speed bound
-        reach = xmin - half <= x <= xmax + half and ymin - half <= y <= ymax + half
-        if away > 0 and not reach:
-            drawn = " (drawn from random_objects.region)" if s.random_objects is not None else ""
-            raise ScenarioError(
-                f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the hands' "
-                f"reach (workspace {s.workspace} widened by its grasp_half_size {half}) and "
-                f"outside its goal {o.goal}")
-        if away > step * s.solver.max_horizon + 1e-9:
-            raise ScenarioError(
-                f"dt: with dt = {s.dt} s and max_speed = {s.max_speed} m/s an object moves at "
-                f"most {step:.3g} m per step, {step * s.solver.max_horizon:.3g} m in "
-                f"solver.max_horizon = {s.solver.max_horizon} steps, but {o.name} is "
-                f"{away:.3g} m from its goal {o.goal}: raise dt, max_speed or "
-                f"solver.max_horizon")

@@ -376,7 +376,7 @@ class StepSearch:
         return evaluate(spec.formula(), self._trace(traj), self.horizon)
 
     def _trace(self, traj):
-        goals = [Rect.of(self.scenario.goals[o.goal]) for o in self.scenario.objects]
+        goals = [Rect.of(self.scenario.task.goals[o.goal]) for o in self.scenario.task.objects]
 
         def value(atom: Atom, k: int) -> bool:
             if atom.name == "eta":

@@ -84,19 +84,19 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
     the nearer hand to the object plus the object's distance to its goal box."""
     def estimate(j: int) -> float:
         p = state.object_pos[j]
-        goal = Rect.of(scenario.goals[scenario.objects[j].goal])
+        goal = Rect.of(scenario.task.goals[scenario.task.objects[j].goal])
         to_goal = np.linalg.norm(np.maximum(goal.lo - p, 0) + np.maximum(p - goal.hi, 0))
         to_hand = np.linalg.norm(state.hand_pos - p, axis=1).min()
         return float(to_hand + to_goal)
 
-    return sorted(sorted(remaining, key=lambda j: (estimate(j), j))[: scenario.n_o])
+    return sorted(sorted(remaining, key=lambda j: (estimate(j), j))[: scenario.task.n_o])
 
 
 def at_rest_in_goal(scenario: Scenario, state: State) -> np.ndarray:
     """(N,) whether each object is delivered in the model: at rest (``REST_TOL``) in its goal."""
     return np.array([bool(delivered(state.object_pos[j], state.object_vel[j],
-                                    scenario.goals[o.goal], REST_TOL))
-                     for j, o in enumerate(scenario.objects)], dtype=bool)
+                                    scenario.task.goals[o.goal], REST_TOL))
+                     for j, o in enumerate(scenario.task.objects)], dtype=bool)
 
 
 def plan_step(scenario: Scenario, state: State, spec: Specification,
@@ -138,7 +138,7 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
     (each decided at the cap: by the skeleton search's feasibility pass, or the monolithic MILP
     stopped at its first solution)."""
     T = scenario.solver.max_horizon
-    objects = [scenario.objects[j].name for j in spec.objects]
+    objects = [scenario.task.objects[j].name for j in spec.objects]
     status = f" (last status: {last.status.value})" if last else ""
     head = f"no plan delivering {spec.m_o} of {objects} within horizon {T}{status}"
     options = options or solver_options(scenario)
@@ -154,7 +154,8 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
     alone = feasible([])
     if alone is Status.INFEASIBLE:
         return (f"{head}: the task alone is infeasible — the goals cannot be reached with "
-                f"|v| <= {scenario.max_speed} and |u| <= {scenario.max_force} from this state")
+                f"|v| <= {scenario.robot.max_speed} and |u| <= {scenario.robot.max_force} from "
+                f"this state")
     if not alone.has_solution:
         return f"{head}: the solver could not decide the task alone within its time limit"
     culprits = [name for name, f in spec.rules if not feasible([(name, f)]).has_solution]
@@ -196,11 +197,11 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
 
     def finish(partial: bool) -> Plan:
         return Plan(
-            dt=scenario.dt, rule=scenario.rule, delivery=scenario.delivery,
-            goals={k: list(v) for k, v in scenario.goals.items()},
+            dt=scenario.robot.dt, rule=scenario.task.rule, delivery=scenario.task.delivery,
+            goals={k: list(v) for k, v in scenario.task.goals.items()},
             objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
-                     for o in scenario.objects],
-            workspace=list(scenario.workspace), trajectory=trajectory,
+                     for o in scenario.task.objects],
+            workspace=list(scenario.robot.workspace), trajectory=trajectory,
             delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
             partial=partial,
         )
@@ -229,7 +230,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         now = at_rest_in_goal(scenario, state)
         newly = [j for j in objects if now[j] and not done[j]]
         for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
-            goal = scenario.goals[scenario.objects[j].goal]
+            goal = scenario.task.goals[scenario.task.objects[j].goal]
             inside = np.flatnonzero(in_goal(step.object_pos[:, j], goal))
             delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
         done = done | now
@@ -241,7 +242,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         if progress:
             progress(seg)
     if not done.all():
-        missing = [scenario.objects[j].name for j in np.flatnonzero(~done)]
+        missing = [scenario.task.objects[j].name for j in np.flatnonzero(~done)]
         raise PlanningError(f"sequential transportation stalled: {missing} not delivered",
                             finish(partial=True))
     return finish(partial=False)

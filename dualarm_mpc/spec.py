@@ -223,9 +223,9 @@ def _grasp_states(found: list[Atom]):
 def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str, Formula]]:
     """The named rules in force (unexpanded): the paper's rule 1 or 2 plus the scenario's own,
     each checked (:func:`check_rule`) before any solve."""
-    rule = scenario.rule if rule is None else rule
+    rule = scenario.task.rule if rule is None else rule
     named = [(name, parse(RULE_TEXT[name])) for name in RULES[rule]]
-    for n, text in enumerate(scenario.rules):
+    for n, text in enumerate(scenario.task.rules):
         f = parse(text)
         check_rule(f, scenario, f"rules[{n}]")
         named.append((f"rules[{n}] {text}", f))
@@ -250,11 +250,11 @@ def check_rule(f: Formula, scenario: Scenario, where: str) -> None:
                 "state the rule with it in positive position")
     names = placeholders(f)
     objects = sorted(names - {ARM_PLACEHOLDER})
-    step = min(scenario.n_o, n)
+    step = min(scenario.task.n_o, n)
     if len(objects) > step:
         raise ScenarioError(
             f"{where}: {len(objects)} distinct object placeholders ({', '.join(objects)}) but a "
-            f"sequential step has at most {step} objects (n_o = {scenario.n_o}, {n} objects): "
+            f"sequential step has at most {step} objects (n_o = {scenario.task.n_o}, {n} objects): "
             "the rule would never apply")
     size = (len(ARMS) if ARM_PLACEHOLDER in names else 1) * math.perm(step, len(objects))
     if size > MAX_RULE_INSTANCES:
@@ -304,14 +304,14 @@ def _negated_atoms(f: Formula) -> set[Atom]:
 def specification(scenario: Scenario, objects: list[int], m_o: int | None = None,
                   rules: list[tuple[str, Formula]] | None = None) -> Specification:
     """The specification of one sequential step over ``objects`` (0-based scenario indices)."""
-    m_o = min(scenario.m_o if m_o is None else m_o, len(objects))
+    m_o = min(scenario.task.m_o if m_o is None else m_o, len(objects))
     named = rule_formulas(scenario) if rules is None else rules
     numbers = [j + 1 for j in objects]
     return Specification(
         objects=tuple(objects),
         m_o=m_o,
-        delivery=scenario.delivery,
-        task_form=scenario.task_form,
+        delivery=scenario.task.delivery,
+        task_form=scenario.task.task_form,
         rules=tuple((name, expand(f, numbers)) for name, f in named),
     )
 

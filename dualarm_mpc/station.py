@@ -9,7 +9,7 @@ Physics (docs/drake.md, measured): MultibodyPlant with the SAP discrete solver a
 hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0 with rigid
 hydroelastic properties; the objects are ``object_size`` boxes with compliant hydroelastic
 properties, resting on it at their scenario positions. Table and objects share the Coulomb
-friction μ = ``scenario.table_friction`` (so the combined μ is exactly that), low by design: a
+friction μ = ``scenario.table.friction`` (so the combined μ is exactly that), low by design: a
 released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`` (the single
 source of its geometry and gains); the table, objects and goal patches are made here because
 their count, colours and friction come from the scenario. The arms' collision geometries collide
@@ -112,12 +112,12 @@ def _object_proximity(size: float, mu: float) -> ProximityProperties:
 
 
 def _table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
-    xs = [scenario.workspace[0], scenario.workspace[1]]
-    ys = [scenario.workspace[2], scenario.workspace[3]]
-    for box in scenario.goals.values():
+    xs = [scenario.robot.workspace[0], scenario.robot.workspace[1]]
+    ys = [scenario.robot.workspace[2], scenario.robot.workspace[3]]
+    for box in scenario.task.goals.values():
         xs += box[:2]
         ys += box[2:]
-    for o in scenario.objects:
+    for o in scenario.task.objects:
         xs.append(o.position[0])
         ys.append(o.position[1])
     return [min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin]
@@ -125,7 +125,7 @@ def _table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
 
 def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
     world = plant.world_body()
-    mu = scenario.table_friction
+    mu = scenario.table.friction
     props = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
     AddRigidHydroelasticProperties(properties=props)
@@ -139,7 +139,7 @@ def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
         "table_top",
         np.array(TABLE_COLOUR),
     )
-    for name, (gx0, gx1, gy0, gy1) in scenario.goals.items():
+    for name, (gx0, gx1, gy0, gy1) in scenario.task.goals.items():
         rgb = np.array(goal_colour(name))
         plant.RegisterVisualGeometry(
             world,
@@ -153,9 +153,9 @@ def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
 def _add_objects(
     plant: MultibodyPlant, scenario: Scenario
 ) -> tuple[tuple[ModelInstanceIndex, ...], tuple[RigidBody, ...]]:
-    size = scenario.object_size
+    size = scenario.table.object_size
     instances, bodies = [], []
-    for o in scenario.objects:
+    for o in scenario.task.objects:
         instance = plant.AddModelInstance(o.name)
         body = plant.AddRigidBody(
             o.name, instance, SpatialInertia.SolidBoxWithMass(OBJECT_MASS, size, size, size)
@@ -166,7 +166,7 @@ def _add_objects(
             RigidTransform(),
             box,
             "collision",
-            _object_proximity(size, scenario.table_friction),
+            _object_proximity(size, scenario.table.friction),
         )
         plant.RegisterVisualGeometry(
             body, RigidTransform(), box, "visual", np.append(goal_colour(o.goal), 1.0)
@@ -223,7 +223,7 @@ def _arm_pairs(plant: MultibodyPlant, robot: ModelInstanceIndex,
 def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2e-3) -> Station:
     """Adds the plant and scene graph of ``scenario`` to ``builder``; returns what was made.
 
-    The arms start at rest with the hands above ``scenario.hand_start`` at the travel height.
+    The arms start at rest with the hands above ``scenario.robot.hand_start`` at the travel height.
     Raises ValueError if the scenario's ``arm_bases`` differ from the model's.
     """
     if time_step <= 0:
@@ -247,14 +247,14 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
     plant.Finalize()
 
     bases, lengths = _arm_geometry(plant, joints)
-    if not np.allclose(bases, np.asarray(scenario.arm_bases, float), atol=1e-9):
+    if not np.allclose(bases, np.asarray(scenario.robot.arm_bases, float), atol=1e-9):
         raise ValueError(
-            f"arm_bases: the scenario has {scenario.arm_bases}, the robot model "
+            f"arm_bases: the scenario has {scenario.robot.arm_bases}, the robot model "
             f"{bases.tolist()} (models/dual_scara.sdf is the source of the robot)"
         )
     travel = TRAVEL_HEIGHT
     for i, (shoulder, elbow, z) in enumerate(joints):
-        q1, q2 = scara_ik(scenario.hand_start[i], bases[i], lengths, ELBOW_SIGNS[i])
+        q1, q2 = scara_ik(scenario.robot.hand_start[i], bases[i], lengths, ELBOW_SIGNS[i])
         shoulder.set_default_angle(q1)
         elbow.set_default_angle(q2)
         z.set_default_translation(travel)
@@ -280,12 +280,12 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         elbow_signs=ELBOW_SIGNS,
         position_indices=position_indices,
         actuator_order=actuator_order,
-        grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.objects),
-        object_size=scenario.object_size,
-        grasp_height=scenario.object_size / 2,
+        grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.task.objects),
+        object_size=scenario.table.object_size,
+        grasp_height=scenario.table.object_size / 2,
         travel_height=travel,
         time_step=time_step,
-        slide_time_constant=scenario.slide_time_constant,
+        slide_time_constant=scenario.table.slide_time_constant,
         table=_table_extent(scenario),
         arm_pairs=_arm_pairs(plant, robot, scene_graph),
     )

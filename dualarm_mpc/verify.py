@@ -38,7 +38,7 @@ class Verification:
 
 def atom_trace(scenario: Scenario, traj: Trajectory, start: int, stop: int):
     """The atoms' truth on steps ``start..stop`` of ``traj`` as a callable ``(atom, k) -> bool``."""
-    goals = [Rect.of(scenario.goals[o.goal]) for o in scenario.objects]
+    goals = [Rect.of(scenario.task.goals[o.goal]) for o in scenario.task.objects]
 
     def value(atom: Atom, k: int) -> bool:
         step = start + k
@@ -79,7 +79,8 @@ def verify(scenario: Scenario, plan: Plan) -> Verification:
     if start != traj.steps:
         problems.append(f"the steps' horizons add up to {start}, the trajectory has {traj.steps}")
     end = State.last(replayed)
-    for j, o in enumerate([] if plan.partial else scenario.objects):
-        if not delivered(end.object_pos[j], end.object_vel[j], scenario.goals[o.goal], REST_TOL):
+    goals = scenario.task.goals
+    for j, o in enumerate([] if plan.partial else scenario.task.objects):
+        if not delivered(end.object_pos[j], end.object_vel[j], goals[o.goal], REST_TOL):
             problems.append(f"{o.name} does not end at rest in goal {o.goal}")
     return Verification(not problems, problems)

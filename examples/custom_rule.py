@@ -21,7 +21,7 @@ from dualarm_mpc.verify import verify
 def main(out: str = "custom_rule.png") -> None:
     task = {"seed": 3, "rule": 2, "random_objects": {"count": 6}}
     scenario = load_scenario("table1_vd", task)
-    red = [j + 1 for j, o in enumerate(scenario.objects) if o.goal == "red"]
+    red = [j + 1 for j, o in enumerate(scenario.task.objects) if o.goal == "red"]
     # eta[2,j]: arm 2 (the left one) holds object j; one rule per red object.
     rules = [f"G !eta[2,{j}]" for j in red]
     scenario = load_scenario("table1_vd", {**task, "rules": rules})
@@ -34,7 +34,7 @@ def main(out: str = "custom_rule.png") -> None:
     verdict = verify(scenario, result)
     assert verdict.ok, verdict.problems
     for n, seg in enumerate(result.segments, 1):
-        names = [scenario.objects[j].name for j in seg.delivered]
+        names = [scenario.task.objects[j].name for j in seg.delivered]
         print(f"step {n}: T = {seg.horizon:2d}, cost {seg.cost:.3f}, delivered {names}")
     held_by_left = {j + 1 for j in range(scenario.n_objects)
                     if result.trajectory.grasp[:, 1, j].any()}

@@ -59,7 +59,7 @@ def main() -> None:
     simulator.set_monitor(monitor)
     simulator.AdvanceTo(60.0)
     t = root.get_time()
-    names = [o.name for o in scenario.objects]
+    names = [o.name for o in scenario.task.objects]
     ok = _delivered(scenario, dual, root)
     print(f"t = {t:4.1f} s: " + ", ".join(f"{n} {'in' if k else 'NOT in'} its goal"
                                           for n, k in zip(names, ok, strict=True)))
@@ -73,7 +73,8 @@ def _delivered(scenario, dual, context) -> list[bool]:
     pc = plant.GetMyContextFromRoot(context)
     boxes = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
     out = []
-    for body, goal in zip(dual.station.objects, [o.goal for o in scenario.objects], strict=True):
+    goal_names = [o.goal for o in scenario.task.objects]
+    for body, goal in zip(dual.station.objects, goal_names, strict=True):
         p = plant.EvalBodyPoseInWorld(pc, body).translation()[:2]
         v = plant.EvalBodySpatialVelocityInWorld(pc, body).translational()
         out.append(bool(delivered(p, v, boxes[goal], REST_SPEED)))

@@ -34,7 +34,15 @@ from dualarm_mpc.cli import main
 from dualarm_mpc.closed_loop import Summary, on_robot, simulate
 from dualarm_mpc.mld import REST_SPEED  # m/s: "at rest" on the robot, as the summary counts it
 from dualarm_mpc.recording import is_self_contained
-from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario
+from dualarm_mpc.scenario import (
+    Event,
+    ObjectSpec,
+    Robot,
+    Scenario,
+    Task,
+    apply_overrides,
+    load_scenario,
+)
 from dualarm_mpc.sequential import solve_horizon
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
@@ -74,9 +82,10 @@ def scene(name: str, objects: list[ObjectSpec], *, rule: int = 1, m_o: int = 1, 
           bounds: dict = VD, events: list[Event] | None = None, **overrides) -> Scenario:
     """A small scene built in code and validated by ``apply_overrides`` (with the closed-loop
     settings of the issue: delivery rest, goal margin 0.03 m, 10 s per solve)."""
-    s = Scenario(name=name, objects=objects, rule=rule, m_o=m_o, n_o=n_o,
-                 events=list(events or []), **{k: v for k, v in bounds.items() if k != "goals"},
-                 goals={k: list(v) for k, v in bounds["goals"].items()})
+    s = Scenario(name=name, robot=Robot(**{k: v for k, v in bounds.items() if k != "goals"}),
+                 task=Task(goals={k: list(v) for k, v in bounds["goals"].items()},
+                           objects=objects, rule=rule, m_o=m_o, n_o=n_o),
+                 events=list(events or []))
     return apply_overrides(s, {**CLOSED_LOOP, **overrides})
 
 
@@ -151,8 +160,8 @@ def assert_replans_recorded(summary: Summary, scenario: Scenario) -> None:
     replans = summary.replans
     assert replans, "no replan recorded"
     times = [r["t"] for r in replans]
-    assert times == pytest.approx([k * scenario.dt for k in range(len(replans))], abs=1e-6)
-    assert times[-1] >= summary.sim_time_s - scenario.dt - 1e-6  # none missing at the end
+    assert times == pytest.approx([k * scenario.robot.dt for k in range(len(replans))], abs=1e-6)
+    assert times[-1] >= summary.sim_time_s - scenario.robot.dt - 1e-6  # none missing at the end
     for r in replans:
         assert r["status"] in KNOWN_STATUSES, r
         assert isinstance(r["wall_s"], float) and r["wall_s"] >= 0, r
@@ -184,10 +193,10 @@ def test_small_scene_every_object_ends_at_rest_in_its_goal(rule: int) -> None:
     assert_timing(summary)
     assert summary.min_arm_clearance_m >= MIN_ARM_CLEARANCE
     # the run stops soon after the last delivery rather than running to the default duration
-    assert summary.sim_time_s <= max(summary.delivered_time_s) + 10 * scenario.dt
+    assert summary.sim_time_s <= max(summary.delivered_time_s) + 10 * scenario.robot.dt
     # the hands stay in their range (the controller may overshoot a little)
     hands = trace.hands()
-    x0, x1, y0, y1 = scenario.workspace
+    x0, x1, y0, y1 = scenario.robot.workspace
     tolerance = 0.03
     assert hands[..., 0].min() >= x0 - tolerance and hands[..., 0].max() <= x1 + tolerance
     assert hands[..., 1].min() >= y0 - tolerance and hands[..., 1].max() <= y1 + tolerance
@@ -199,7 +208,7 @@ def test_small_scene_every_object_ends_at_rest_in_its_goal(rule: int) -> None:
 def test_rule2_throws_an_object_onto_an_unreachable_goal_where_it_comes_to_rest() -> None:
     scenario = scene("throw", [ObjectSpec("a", [0.0, 0.2], "green")], rule=2, bounds=VC)
     goal = VC["goals"]["green"]
-    assert goal[2] > VC_HAND_RANGE_Y + scenario.objects[0].grasp_half_size  # out of reach
+    assert goal[2] > VC_HAND_RANGE_Y + scenario.task.objects[0].grasp_half_size  # out of reach
     summary, trace = run(scenario)
     assert_all_at_rest_in_goals(summary, goals=VC["goals"])
     assert_replans_recorded(summary, scenario)

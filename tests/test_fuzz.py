@@ -13,10 +13,10 @@ from strategies import formulas
 
 from dualarm_mpc.ltl import Atom, LTLSyntaxError, parse
 from dualarm_mpc.scenario import (
+    YAML_FIELDS,
     Event,
     ObjectSpec,
     RandomObjects,
-    Scenario,
     ScenarioError,
     SolverOptions,
     load_scenario,
@@ -130,7 +130,7 @@ def _fields(cls) -> list[str]:
 
 
 # Keys: the fields, nested fields and paths into lists, and some that are none of these.
-KEYS = (_fields(Scenario) + [f"solver.{k}" for k in _fields(SolverOptions)]
+KEYS = (list(YAML_FIELDS) + [f"solver.{k}" for k in _fields(SolverOptions)]
         + [f"random_objects.{k}" for k in _fields(RandomObjects)]
         + [f"objects[{n}].{k}" for n in (0, 3, 12) for k in _fields(ObjectSpec)]
         + [f"events[0].{k}" for k in _fields(Event)]

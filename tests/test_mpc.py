@@ -10,16 +10,17 @@ import numpy as np
 
 from dualarm_mpc.mld import REST_SPEED, in_goal
 from dualarm_mpc.mpc import SEARCHING, Measured, MpcState, Replanner
-from dualarm_mpc.scenario import ObjectSpec, Scenario, apply_overrides
+from dualarm_mpc.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
 from dualarm_mpc.sequential import solve_horizon
 
 GOALS = {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]}
 
 
 def scenario(**overrides) -> Scenario:
-    s = Scenario(name="core", objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1, m_o=1,
-                 n_o=1, workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2, max_force=0.1,
-                 goals={k: list(v) for k, v in GOALS.items()})
+    s = Scenario(name="core",
+                 robot=Robot(workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2, max_force=0.1),
+                 task=Task(goals={k: list(v) for k, v in GOALS.items()},
+                           objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1, m_o=1, n_o=1))
     return apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03,
                                "solver": {"time_limit_s": 10, "replan_budget_s": 60},
                                **overrides})
@@ -27,9 +28,10 @@ def scenario(**overrides) -> Scenario:
 
 def at_rest(sc: Scenario, object_pos=None) -> Measured:
     """The robot at its start, everything at rest, the gripper empty."""
-    pos = np.array([o.position for o in sc.objects] if object_pos is None else object_pos, float)
+    objects = sc.task.objects
+    pos = np.array([o.position for o in objects] if object_pos is None else object_pos, float)
     n = len(pos)
-    return Measured(hand_pos=np.array(sc.hand_start, float), hand_vel=np.zeros((2, 2)),
+    return Measured(hand_pos=np.array(sc.robot.hand_start, float), hand_vel=np.zeros((2, 2)),
                     object_pos=pos, object_vel=np.zeros((n, 2)), grasp=np.zeros((2, n)))
 
 
@@ -37,12 +39,12 @@ def test_a_replan_from_rest_returns_a_plan_that_starts_now_and_its_record() -> N
     sc = scenario()
     core = Replanner(sc)
     s0 = core.initial_state()
-    s1, r = core.step(0.0, s0, at_rest(sc), sc.goals)
+    s1, r = core.step(0.0, s0, at_rest(sc), sc.task.goals)
     core.close(s1)
     assert r.status in ("optimal", "feasible") and r.t == 0.0 and r.wall_s >= 0
     assert r.objects == (0,) and r.delivered == 0 and r.horizon is not None
     assert s1.plan.t0 == 0.0 and s1.plan.trajectory.steps == r.horizon
-    assert s1.horizon_end == r.horizon * sc.dt and s1.step_objects == (0,)
+    assert s1.horizon_end == r.horizon * sc.robot.dt and s1.step_objects == (0,)
     assert s1.search is None and s0.step_objects == ()  # the input state is not changed
     # the plan ends with the object in its goal
     end = s1.plan.trajectory.object_pos[-1, 0]
@@ -54,7 +56,7 @@ def test_an_object_resting_in_its_goal_is_delivered_and_the_robot_holds_still() 
     core = Replanner(sc)
     slow = at_rest(sc, [[0.4, 0.8]])
     slow = dataclasses.replace(slow, object_vel=np.array([[0.5 * REST_SPEED, 0.0]]))
-    s, r = core.step(3.0, core.initial_state(), slow, sc.goals)
+    s, r = core.step(3.0, core.initial_state(), slow, sc.task.goals)
     core.close(s)
     assert r.status == "done" and r.delivered == 1 and s.delivered_time == (3.0,)
     assert s.plan.t0 == 3.0 and not s.plan.trajectory.grasp.any()
@@ -64,7 +66,7 @@ def test_the_goals_come_from_the_caller() -> None:
     """A goal moved onto the object: it is delivered where it rests, with no solve."""
     sc = scenario()
     core = Replanner(sc)
-    moved = {**sc.goals, "red": [0.0, 0.2, 0.0, 0.2]}
+    moved = {**sc.task.goals, "red": [0.0, 0.2, 0.0, 0.2]}
     s, r = core.step(0.0, core.initial_state(), at_rest(sc), moved)
     core.close(s)
     assert r.status == "done" and s.delivered_time == (0.0,)
@@ -77,7 +79,7 @@ def test_a_failing_solve_is_recorded_and_keeps_the_plan_in_force() -> None:
     sc = scenario()
     core = Replanner(sc, solve=failing)
     s0 = core.initial_state()
-    s1, r = core.step(0.0, s0, at_rest(sc), sc.goals)
+    s1, r = core.step(0.0, s0, at_rest(sc), sc.task.goals)
     core.close(s1)
     assert r.status == "error" and r.note == "RuntimeError: injected"
     assert s1.plan is s0.plan
@@ -94,11 +96,11 @@ def test_a_search_past_the_budget_goes_on_at_rest_and_its_plan_applies_when_it_e
 
     sc = scenario(solver={"time_limit_s": 10, "replan_budget_s": 0.001})
     core = Replanner(sc, solve=held)
-    s1, r1 = core.step(0.0, core.initial_state(), at_rest(sc), sc.goals)
+    s1, r1 = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
     assert r1.status == "searching" and r1.note == SEARCHING and s1.search is not None
     release.set()
     s1.search.future.result()  # the search has ended: the next replan adopts it
-    s2, r2 = core.step(1.0, s1, at_rest(sc), sc.goals)
+    s2, r2 = core.step(1.0, s1, at_rest(sc), sc.task.goals)
     core.close(s2)
     assert r2.status in ("optimal", "feasible") and s2.search is None
     assert s2.plan.t0 == 1.0 and s2.step_objects == (0,)
@@ -109,15 +111,15 @@ def test_a_search_carried_over_is_abandoned_when_a_goal_moves() -> None:
     calls = []
 
     def held(*args, **kwargs):
-        calls.append(args[0].goals["red"])
+        calls.append(args[0].task.goals["red"])
         release.wait()
         return solve_horizon(*args, **kwargs)
 
     sc = scenario(solver={"time_limit_s": 10, "replan_budget_s": 0.001})
     core = Replanner(sc, solve=held)
-    s1, _ = core.step(0.0, core.initial_state(), at_rest(sc), sc.goals)
+    s1, _ = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
     first = s1.search
-    moved = {**sc.goals, "red": [0.2, 0.55, 0.6, 0.9]}
+    moved = {**sc.task.goals, "red": [0.2, 0.55, 0.6, 0.9]}
     s2, r2 = core.step(1.0, s1, at_rest(sc), moved)
     assert first.job.options.interrupt.is_set()  # the old search was told to stop
     assert r2.status == "searching" and s2.search is not first
@@ -153,12 +155,12 @@ def test_an_object_held_still_in_its_goal_by_the_plan_in_force_is_delivered() ->
 
     hold = Trajectory(still(hand), np.zeros((3, 2, 2)), np.zeros((2, 2, 2)), still(obj),
                       np.zeros((3, 1, 2)), still(grasp))
-    s = MpcState(plan=TimedTrajectory(0.0, sc.dt, hold), step_objects=(0,), step_target=1,
+    s = MpcState(plan=TimedTrajectory(0.0, sc.robot.dt, hold), step_objects=(0,), step_target=1,
                  horizon_end=2.0, delivered_time=(None,))
     measured = Measured(hand_pos=hand, hand_vel=np.zeros((2, 2)), object_pos=obj,
                         object_vel=np.zeros((1, 2)), grasp=grasp.astype(float))
     core = Replanner(sc)
-    s, r = core.step(1.0, s, measured, sc.goals)
+    s, r = core.step(1.0, s, measured, sc.task.goals)
     core.close(s)
     assert r.status == "done" and s.delivered_time == (1.0,)
     assert not s.plan.trajectory.grasp.any(), "the hand lets go"

@@ -18,7 +18,15 @@ import robustness as rb  # noqa: E402
 
 from dualarm_mpc.closed_loop import World, on_robot, simulate  # noqa: E402
 from dualarm_mpc.mld import Rect  # noqa: E402
-from dualarm_mpc.scenario import Event, ObjectSpec, Scenario, apply_overrides, load_scenario  # noqa: E402
+from dualarm_mpc.scenario import (  # noqa: E402
+    Event,
+    ObjectSpec,
+    Robot,
+    Scenario,
+    Task,
+    apply_overrides,
+    load_scenario,
+)
 
 
 def vd(rule: int = 1, seed: int = 0) -> Scenario:
@@ -29,18 +37,18 @@ def vd(rule: int = 1, seed: int = 0) -> Scenario:
 def world(sc: Scenario, t: float = 10.0, grasp: np.ndarray | None = None,
           object_pos: np.ndarray | None = None, goals: dict | None = None) -> World:
     n = sc.n_objects
-    pos = np.array([o.position for o in sc.objects]) if object_pos is None else object_pos
-    return World(t=t, hand_pos=np.array(sc.hand_start, float), object_pos=pos,
+    pos = np.array([o.position for o in sc.task.objects]) if object_pos is None else object_pos
+    return World(t=t, hand_pos=np.array(sc.robot.hand_start, float), object_pos=pos,
                  object_vel=np.zeros((n, 2)),
                  grasp=np.zeros((2, n), bool) if grasp is None else grasp,
-                 goals=dict(sc.goals) if goals is None else goals, delivered=np.zeros(n, bool))
+                 goals=dict(sc.task.goals) if goals is None else goals, delivered=np.zeros(n, bool))
 
 
 # --- stuck: from the model's bounds -----------------------------------------------------------
 
 
 def index_of_goal(sc: Scenario, goal: str) -> int:
-    return next(j for j, o in enumerate(sc.objects) if o.goal == goal)
+    return next(j for j, o in enumerate(sc.task.objects) if o.goal == goal)
 
 
 @pytest.mark.parametrize("rule", [1, 2])
@@ -48,7 +56,7 @@ def test_objects_in_the_hand_range_or_within_a_grasp_of_it_are_not_stuck(rule) -
     sc = vd(rule)
     j = index_of_goal(sc, "red")
     for p in ([0.0, 0.0], [0.9, -0.3], [-0.94, 0.2], [0.5, 0.94]):
-        assert rb.stuck_reason(sc, sc.goals, j, np.array(p)) is None, p
+        assert rb.stuck_reason(sc, sc.task.goals, j, np.array(p)) is None, p
 
 
 @pytest.mark.parametrize("rule", [1, 2])
@@ -56,9 +64,9 @@ def test_objects_beyond_the_grasp_range_are_stuck_unless_in_their_goal(rule) -> 
     sc = vd(rule)
     j = index_of_goal(sc, "green")
     for p in ([0.96, 0.0], [-0.96, 0.0], [0.0, -0.36], [0.5, 1.1]):
-        assert rb.stuck_reason(sc, sc.goals, j, np.array(p)) == "beyond the hands' grasp range"
+        assert rb.stuck_reason(sc, sc.task.goals, j, np.array(p)) == "beyond the hands' grasp range"
     # in its own goal beyond reach (green reaches y = 1.15, the hands y = 0.9): delivered
-    assert rb.stuck_reason(sc, sc.goals, j, np.array([0.0, 1.1])) is None
+    assert rb.stuck_reason(sc, sc.task.goals, j, np.array([0.0, 1.1])) is None
 
 
 def test_rule_1_without_regrasp_an_object_at_the_far_edge_cannot_reach_a_far_goal() -> None:
@@ -67,11 +75,11 @@ def test_rule_1_without_regrasp_an_object_at_the_far_edge_cannot_reach_a_far_goa
     release outside the goal (rule 1) there is no regrasp. Rule 2 may put it down and regrasp."""
     p = np.array([0.0, -0.34])
     j = index_of_goal(vd(1), "green")
-    assert rb.stuck_reason(vd(1), vd(1).goals, j, p) == \
+    assert rb.stuck_reason(vd(1), vd(1).task.goals, j, p) == \
         "rule 1: no single grasp carries it into its goal"
-    assert rb.stuck_reason(vd(2), vd(2).goals, j, p) is None
+    assert rb.stuck_reason(vd(2), vd(2).task.goals, j, p) is None
     red = index_of_goal(vd(1), "red")
-    assert rb.stuck_reason(vd(1), vd(1).goals, red, p) is None  # red reaches down to 0.68
+    assert rb.stuck_reason(vd(1), vd(1).task.goals, red, p) is None  # red reaches down to 0.68
 
 
 def test_the_hand_gap_of_eq_16_leaves_each_edge_to_one_hand_only() -> None:
@@ -110,12 +118,12 @@ def fire(d: rb.Disturbances, kind: str, w: World) -> list[Event]:
 
 
 def assert_clear(sc: Scenario, d: rb.Disturbances, w: World, e: Event) -> None:
-    j = [o.name for o in sc.objects].index(e.target)
+    j = [o.name for o in sc.task.objects].index(e.target)
     p = np.array(e.position)
     assert d.table.contains(p), "on the table top"
     others = np.delete(w.object_pos, j, axis=0)
-    assert np.abs(others - p).max(axis=1).min() >= sc.object_size + rb.CLEARANCE
-    assert np.abs(w.hand_pos - p).max(axis=1).min() >= sc.objects[j].grasp_half_size
+    assert np.abs(others - p).max(axis=1).min() >= sc.table.object_size + rb.CLEARANCE
+    assert np.abs(w.hand_pos - p).max(axis=1).min() >= sc.task.objects[j].grasp_half_size
 
 
 @pytest.mark.parametrize("seed", range(12))
@@ -126,7 +134,7 @@ def test_a_held_object_is_knocked_out_of_the_hand_to_a_free_place(seed) -> None:
     grasp[1, 4] = True
     w = world(sc, grasp=grasp)
     (e,) = fire(d, "held", w)
-    assert e.kind == "move_object" and e.target == sc.objects[4].name and e.time == w.t
+    assert e.kind == "move_object" and e.target == sc.task.objects[4].name and e.time == w.t
     moved = np.linalg.norm(np.array(e.position) - w.object_pos[4])
     assert rb.KNOCK_DISTANCE[0] - 1e-9 <= moved <= rb.KNOCK_DISTANCE[1] + 1e-9
     assert_clear(sc, d, w, e)
@@ -151,14 +159,14 @@ def test_a_held_knock_waits_for_a_held_object_then_gives_up() -> None:
 def test_a_delivered_object_is_knocked_out_of_its_goal(seed) -> None:
     sc = vd(seed=seed)
     d = rb.Disturbances(sc, seed)
-    pos = np.array([o.position for o in sc.objects])
+    pos = np.array([o.position for o in sc.task.objects])
     j = index_of_goal(sc, "blue")
-    goal = Rect.of(sc.goals["blue"])
+    goal = Rect.of(sc.task.goals["blue"])
     pos[j] = (goal.lo + goal.hi) / 2
     w = world(sc, object_pos=pos)
     (e,) = fire(d, "delivered", w)
-    assert e.target == sc.objects[j].name
-    assert not goal.contains(np.array(e.position), tol=sc.object_size / 2)
+    assert e.target == sc.task.objects[j].name
+    assert not goal.contains(np.array(e.position), tol=sc.table.object_size / 2)
     assert_clear(sc, d, w, e)
 
 
@@ -169,8 +177,8 @@ def test_a_table_knock_lands_on_the_table_clear_and_stuck_is_decided_there(seed)
     w = world(sc)
     (e,) = fire(d, "table", w)
     assert_clear(sc, d, w, e)
-    j = [o.name for o in sc.objects].index(e.target)
-    reason = rb.stuck_reason(sc, sc.goals, j, np.array(e.position))
+    j = [o.name for o in sc.task.objects].index(e.target)
+    reason = rb.stuck_reason(sc, sc.task.goals, j, np.array(e.position))
     assert d.log[-1]["stuck"] == reason
     assert (j in d.stuck) == (reason is not None)
 
@@ -181,30 +189,30 @@ def test_a_goal_moves_inside_the_hand_range_clear_of_goals_and_other_objects(see
     d = rb.Disturbances(sc, seed)
     w = world(sc)
     (e,) = fire(d, "goal", w)
-    assert e.kind == "move_goal" and e.target in sc.goals
-    new, old = Rect.of(e.box), Rect.of(sc.goals[e.target])
-    ws = Rect.of(sc.workspace)
+    assert e.kind == "move_goal" and e.target in sc.task.goals
+    new, old = Rect.of(e.box), Rect.of(sc.task.goals[e.target])
+    ws = Rect.of(sc.robot.workspace)
     assert np.all(new.lo >= ws.lo - 1e-9) and np.all(new.hi <= ws.hi + 1e-9)
     assert np.allclose(new.hi - new.lo, old.hi - old.lo, atol=1e-3)
     assert np.abs((new.lo + new.hi - old.lo - old.hi) / 2).max() >= rb.GOAL_SHIFT - 1e-3
-    for g, b in sc.goals.items():
+    for g, b in sc.task.goals.items():
         if g != e.target:
             assert not rb._overlap(new, Rect.of(b), 0.0)
-    strangers = [j for j, o in enumerate(sc.objects) if o.goal != e.target]
-    assert not new.contains(w.object_pos[strangers], tol=sc.object_size / 2).any()
+    strangers = [j for j, o in enumerate(sc.task.objects) if o.goal != e.target]
+    assert not new.contains(w.object_pos[strangers], tol=sc.table.object_size / 2).any()
 
 
 def test_a_goal_move_strands_an_object_thrown_beyond_the_hands_into_the_old_goal() -> None:
     sc = vd(rule=2)
     d = rb.Disturbances(sc, 0)
     j = index_of_goal(sc, "green")
-    pos = np.array([o.position for o in sc.objects])
+    pos = np.array([o.position for o in sc.task.objects])
     pos[j] = [0.0, 1.1]  # thrown into green, beyond the hands' reach (y <= 0.95 with a grasp)
     event = Event(time=10.0, kind="move_goal", target="green", box=[-0.6, -0.25, 0.0, 0.3])
     d._judge(event, world(sc, object_pos=pos))
     assert d.stuck == {j: "beyond the hands' grasp range"}
     # moved back over it: delivered again, not stuck
-    d._judge(replace(event, box=sc.goals["green"]), world(sc, object_pos=pos))
+    d._judge(replace(event, box=sc.task.goals["green"]), world(sc, object_pos=pos))
     assert d.stuck == {}
 
 
@@ -235,9 +243,10 @@ class KnockWhenHeld:
 def test_an_object_knocked_out_of_the_hand_stays_where_knocked_and_is_delivered() -> None:
     """Before Gripper.detach the grip's spring pulled a knocked object straight back into the
     hand within ~50 ms, so a knock mid-carry never left the hand."""
-    s = Scenario(name="knock_held", objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1,
-                 m_o=1, n_o=1, workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2, max_force=0.1,
-                 goals={"red": [0.225, 0.575, 0.65, 0.95]})
+    s = Scenario(name="knock_held",
+                 robot=Robot(workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2, max_force=0.1),
+                 task=Task(goals={"red": [0.225, 0.575, 0.65, 0.95]},
+                           objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1, m_o=1, n_o=1))
     sc = apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03,
                              "solver": {"time_limit_s": 10, "replan_budget_s": 60}})
     knock = KnockWhenHeld([0.35, 0.2])

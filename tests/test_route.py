@@ -36,11 +36,11 @@ def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:
 def _random_state(scenario, objects, rng) -> State:
     """The scenario's objects, hands anywhere in their range with eq. (16), moving."""
     state = State.initial(scenario)
-    ws = scenario.workspace
+    ws = scenario.robot.workspace
     x = np.sort(rng.uniform(ws[0], ws[1], 2))[::-1]
-    x[1] = min(x[1], x[0] - scenario.hand_gap)
+    x[1] = min(x[1], x[0] - scenario.robot.hand_gap)
     hand_pos = np.column_stack([x, rng.uniform(ws[2], ws[3], 2)])
-    hand_vel = rng.uniform(-1, 1, (2, 2)) * scenario.max_speed * (rng.random() < 0.5)
+    hand_vel = rng.uniform(-1, 1, (2, 2)) * scenario.robot.max_speed * (rng.random() < 0.5)
     return State(hand_pos, hand_vel, state.object_pos, state.object_vel, state.grasp)
 
 

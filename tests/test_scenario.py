@@ -11,6 +11,7 @@ import pytest
 
 from dualarm_mpc.scenario import (
     BUILTIN,
+    YAML_FIELDS,
     Scenario,
     ScenarioError,
     apply_overrides,
@@ -31,7 +32,7 @@ def test_builtin_names() -> None:
 def test_table1_vc_is_the_papers_section_vc() -> None:
     s = load_scenario("table1_vc")
     assert s.n_objects == 10
-    assert [o.name for o in s.objects] == [f"object{j}" for j in range(1, 11)]
+    assert [o.name for o in s.task.objects] == [f"object{j}" for j in range(1, 11)]
     given = {
         1: (0.1, 0.1),
         2: (-0.1, 0.1),
@@ -43,29 +44,29 @@ def test_table1_vc_is_the_papers_section_vc() -> None:
         9: (-0.3, 0.1),
     }  # Table I
     for j, p in given.items():
-        assert s.objects[j - 1].position == pytest.approx(list(p))
-    positions = {tuple(o.position) for o in s.objects}
+        assert s.task.objects[j - 1].position == pytest.approx(list(p))
+    positions = {tuple(o.position) for o in s.task.objects}
     assert len(positions) == 10  # objects 3 and 10 at free spots
-    assert s.goals == {
+    assert s.task.goals == {
         "red": [0.225, 0.575, 1.15, 1.45],
         "green": [-0.175, 0.175, 1.35, 1.65],
         "blue": [-0.575, -0.225, 1.15, 1.45],
     }
-    assert s.workspace == [-0.9, 0.9, 0.0, 0.9]
-    assert s.hand_start == [[0.1, 0.0], [-0.1, 0.0]]  # arm 1 = right
-    assert all(o.goal in s.goals for o in s.objects)
+    assert s.robot.workspace == [-0.9, 0.9, 0.0, 0.9]
+    assert s.robot.hand_start == [[0.1, 0.0], [-0.1, 0.0]]  # arm 1 = right
+    assert all(o.goal in s.task.goals for o in s.task.objects)
     # every goal lies beyond the hands' reach: objects must be thrown
-    assert min(b[2] for b in s.goals.values()) > s.workspace[3]
+    assert min(b[2] for b in s.task.goals.values()) > s.robot.workspace[3]
 
 
 def test_table1_vd_random_objects_and_extended_hand_range() -> None:
     s = load_scenario("table1_vd")
-    assert s.random_objects is not None and s.n_objects == s.random_objects.count == 10
-    xy = np.array([o.position for o in s.objects])
+    assert s.task.random_objects is not None and s.n_objects == s.task.random_objects.count == 10
+    xy = np.array([o.position for o in s.task.objects])
     assert (np.abs(xy) <= 0.25).all()
-    assert s.workspace[2] <= -0.3  # docs/scenarios.md: the hands reach objects below y = 0
-    assert [o.goal for o in s.objects[:4]] == ["red", "green", "blue", "red"]  # round-robin
-    assert s.goals["green"] == [-0.175, 0.175, 0.85, 1.15]
+    assert s.robot.workspace[2] <= -0.3  # docs/scenarios.md: the hands reach objects below y = 0
+    assert [o.goal for o in s.task.objects[:4]] == ["red", "green", "blue", "red"]  # round-robin
+    assert s.task.goals["green"] == [-0.175, 0.175, 0.85, 1.15]
 
 
 # --- overrides ------------------------------------------------------------------------------------
@@ -79,9 +80,9 @@ def test_override_by_dict_and_by_yaml_text_agree() -> None:
         "table1_vc", "max_speed: 0.3\nsolver: {time_limit_s: 5}\nrules: ['G true']"
     )
     assert as_dict == as_text
-    assert as_dict.max_speed == 0.3 and as_dict.solver.time_limit_s == 5.0
+    assert as_dict.robot.max_speed == 0.3 and as_dict.solver.time_limit_s == 5.0
     assert as_dict.solver.max_horizon == Scenario().solver.max_horizon  # nested: merged, not reset
-    assert as_dict.max_force == 0.5  # untouched fields keep the file's values
+    assert as_dict.robot.max_force == 0.5  # untouched fields keep the file's values
     assert isinstance(as_dict.solver.time_limit_s, float)
 
 
@@ -107,7 +108,8 @@ def test_override_replaces_objects_and_scenario_file_path(tmp_path) -> None:
             ]
         },
     )
-    assert [(o.name, o.position, o.grasp_half_size) for o in s.objects] == [("b", [0.0, 0.2], 0.03)]
+    assert [(o.name, o.position, o.grasp_half_size) for o in s.task.objects] == [
+        ("b", [0.0, 0.2], 0.03)]
     assert s.name == "mine"
 
 
@@ -129,8 +131,8 @@ def test_overriding_one_goal_keeps_the_others() -> None:
     """Mappings merge, as Drake's ``yaml_load_typed`` does (retain_map_defaults): moving one goal
     with ``--set 'goals: {red: [...]}'`` must not delete the green and blue goals."""
     s = load_scenario("table1_vc", {"goals": {"red": [0.2, 0.5, 1.2, 1.4]}})
-    assert s.goals["red"] == [0.2, 0.5, 1.2, 1.4]
-    assert set(s.goals) == {"red", "green", "blue"}
+    assert s.task.goals["red"] == [0.2, 0.5, 1.2, 1.4]
+    assert set(s.task.goals) == {"red", "green", "blue"}
 
 
 # --- random objects -------------------------------------------------------------------------------
@@ -140,9 +142,9 @@ def test_random_objects_are_reproducible_from_the_seed() -> None:
     a = load_scenario("table1_vd", {"seed": 7})
     b = load_scenario("table1_vd", {"seed": 7})
     c = load_scenario("table1_vd", {"seed": 8})
-    assert a.objects == b.objects
-    assert [o.position for o in a.objects] != [o.position for o in c.objects]
-    assert [o.goal for o in a.objects] == [o.goal for o in c.objects]
+    assert a.task.objects == b.task.objects
+    assert [o.position for o in a.task.objects] != [o.position for o in c.task.objects]
+    assert [o.goal for o in a.task.objects] == [o.goal for o in c.task.objects]
 
 
 def test_random_objects_in_region_and_count() -> None:
@@ -327,6 +329,17 @@ def test_bad_yaml_file_and_text(tmp_path) -> None:
         load_scenario("table1_vc", "just text")
 
 
+def test_the_file_is_flat_and_names_every_grouped_field_once() -> None:
+    """The groups are Python's view only: each YAML key sets one field of one group, every field
+    has its key, and a group's name is no key of the file."""
+    s = Scenario()
+    groups = ("robot", "table", "task")
+    fields = [f"{g}.{f.name}" for g in groups for f in dataclasses.fields(getattr(s, g))]
+    fields += [f.name for f in dataclasses.fields(s) if f.name not in groups]
+    assert sorted(YAML_FIELDS.values()) == sorted(fields)
+    assert _error("robot.max_speed: 0.3").startswith("robot: unknown field (known: arm_bases, ")
+
+
 def test_unknown_field_in_a_file(tmp_path) -> None:
     path = tmp_path / "typo.yaml"
     path.write_text("goalz: {}\n")
@@ -346,8 +359,8 @@ def test_numbers_yaml_1_1_reads_as_text_are_numbers(tmp_path, text: str, value: 
         "solver": {"mip_rel_gap": value}}
     path = tmp_path / "s.yaml"
     path.write_text(f"state_weight: {text}\n")
-    assert load_scenario("table1_vc", path.read_text()).state_weight == value
-    assert load_scenario("table1_vc", {"state_weight": value}).state_weight == value
+    assert load_scenario("table1_vc", path.read_text()).task.state_weight == value
+    assert load_scenario("table1_vc", {"state_weight": value}).task.state_weight == value
 
 
 def test_a_quoted_number_stays_text() -> None:
@@ -372,12 +385,13 @@ def test_paths_with_indices_change_one_element() -> None:
     s = load_scenario("table1_vc", "objects[2].position: [0.25, 0.15]\n"
                                    "objects[3].position[1]: 0.25\n"
                                    "goals.red[3]: 1.5\nhand_start[1][0]: -0.2")
-    assert s.objects[2].position == [0.25, 0.15]
-    assert s.objects[3].position == [base.objects[3].position[0], 0.25]
-    assert s.objects[2].name == base.objects[2].name and s.objects[4] == base.objects[4]
-    assert s.goals["red"] == [*base.goals["red"][:3], 1.5]
-    assert s.hand_start == [base.hand_start[0], [-0.2, 0.0]]
-    assert load_scenario("table1_vc", {"objects[2].goal": "blue"}).objects[2].goal == "blue"
+    assert s.task.objects[2].position == [0.25, 0.15]
+    assert s.task.objects[3].position == [base.task.objects[3].position[0], 0.25]
+    assert s.task.objects[2].name == base.task.objects[2].name
+    assert s.task.objects[4] == base.task.objects[4]
+    assert s.task.goals["red"] == [*base.task.goals["red"][:3], 1.5]
+    assert s.robot.hand_start == [base.robot.hand_start[0], [-0.2, 0.0]]
+    assert load_scenario("table1_vc", {"objects[2].goal": "blue"}).task.objects[2].goal == "blue"
 
 
 def test_later_keys_win_between_paths_and_mappings() -> None:
@@ -388,7 +402,7 @@ def test_later_keys_win_between_paths_and_mappings() -> None:
     # a path into a list given in the same override changes that list
     s = load_scenario("table1_vc", {"objects": [{"name": "a", "position": [0.1, 0.1],
                                                  "goal": "red"}], "objects[0].goal": "blue"})
-    assert [(o.name, o.goal) for o in s.objects] == [("a", "blue")]
+    assert [(o.name, o.goal) for o in s.task.objects] == [("a", "blue")]
 
 
 def test_merging_overrides_patches_lists_by_index() -> None:
@@ -469,7 +483,7 @@ def test_objects_and_random_objects_together_are_an_error(tmp_path) -> None:
     assert _error("objects[0].position: [0.1, 0.1]", "table1_vd").startswith("objects: given")
     listed = load_scenario("table1_vd", {"random_objects": None, "objects": [
         {"name": "a", "position": [0.1, 0.1], "goal": "red"}]})
-    assert [o.name for o in listed.objects] == ["a"]
+    assert [o.name for o in listed.task.objects] == ["a"]
 
 
 def test_an_object_off_the_table_is_named() -> None:

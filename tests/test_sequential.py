@@ -23,14 +23,15 @@ TOL = 1e-6
 
 def assert_every_object_rests_in_its_goal(scenario: Scenario, p: Plan) -> None:
     t = p.trajectory
-    for j, o in enumerate(scenario.objects):
-        goal = Rect.of(scenario.goals[o.goal])
+    for j, o in enumerate(scenario.task.objects):
+        goal = Rect.of(scenario.task.goals[o.goal])
         assert goal.contains(t.object_pos[-1, j], TOL), (o.name, t.object_pos[-1, j], o.goal)
         np.testing.assert_allclose(t.object_vel[-1, j], 0.0, atol=TOL, err_msg=o.name)
 
 
 def in_goal(scenario: Scenario, t: Trajectory, j: int) -> np.ndarray:
-    return Rect.of(scenario.goals[scenario.objects[j].goal]).contains(t.object_pos[:, j], TOL)
+    goal = scenario.task.goals[scenario.task.objects[j].goal]
+    return Rect.of(goal).contains(t.object_pos[:, j], TOL)
 
 
 # --- plans that work ------------------------------------------------------------------------------
@@ -59,7 +60,7 @@ def test_two_object_plan_is_verified_and_delivers(two_object_plan) -> None:
     assert all(s.status == "optimal" for s in p.segments)
     assert p.total_cost == pytest.approx(np.abs(t.force).sum(), abs=1e-6)
     assert p.total_cost > 0.3  # the forces really moved the hands
-    assert p.rule == scenario.rule and p.delivery == scenario.delivery
+    assert p.rule == scenario.task.rule and p.delivery == scenario.task.delivery
 
 
 def test_two_object_plan_trajectory_shapes(two_object_plan) -> None:
@@ -80,7 +81,7 @@ def test_delivered_step_is_when_the_object_is_in_its_goal(two_object_plan) -> No
         k = p.delivered_step[j]
         inside = in_goal(scenario, p.trajectory, j)
         assert k is not None and inside[k], (j, k, inside.astype(int))
-        assert not inside[:k].any() or scenario.delivery == "reach"
+        assert not inside[:k].any() or scenario.task.delivery == "reach"
 
 
 def test_plan_round_trips_through_json(two_object_plan, tmp_path) -> None:
@@ -192,7 +193,7 @@ def test_verify_catches_a_force_above_the_bound(rule2_plan) -> None:
 
     scenario, p = rule2_plan
     f = p.trajectory.force.copy()
-    f[-1, 1, 0] += 2 * scenario.max_force
+    f[-1, 1, 0] += 2 * scenario.robot.max_force
     t = replay(Model.from_scenario(scenario), State.initial(scenario), f, p.trajectory.grasp)
     check = verify(scenario, dataclasses.replace(p, trajectory=t))
     assert any("|u|" in m for m in check.problems), check.problems

@@ -13,7 +13,7 @@ from pydrake.systems.primitives import ConstantValueSource
 
 from dualarm_mpc.plan import TimedTrajectory, Trajectory
 from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
-from dualarm_mpc.scenario import ObjectSpec, Scenario, load_scenario
+from dualarm_mpc.scenario import ObjectSpec, Scenario, Table, Task, load_scenario
 from dualarm_mpc.station import AddControlStack, AddStation, Station, goal_colour
 from dualarm_mpc.systems.clearance import ArmClearance
 from dualarm_mpc.systems.controller import (
@@ -45,10 +45,9 @@ GRASP_HEIGHT = 0.025
 def one_object_scenario(friction: float = 0.02, slide_time_constant: float | None = None
                         ) -> Scenario:
     return Scenario(
-        goals={"red": [0.2, 0.4, 0.5, 0.7]},
-        objects=[ObjectSpec(name="box", position=[0.1, 0.1], goal="red")],
-        table_friction=friction,
-        slide_time_constant=slide_time_constant,
+        table=Table(friction=friction, slide_time_constant=slide_time_constant),
+        task=Task(goals={"red": [0.2, 0.4, 0.5, 0.7]},
+                  objects=[ObjectSpec(name="box", position=[0.1, 0.1], goal="red")]),
     )
 
 
@@ -120,13 +119,13 @@ def test_station_reads_the_model_and_places_objects():
     station = AddStation(DiagramBuilder(), scenario)
     np.testing.assert_allclose(station.arm_bases, [[0.3, -0.8], [-0.3, -0.8]])
     assert station.link_lengths == pytest.approx((0.9, 1.3))
-    assert [b.name() for b in station.objects] == [o.name for o in scenario.objects]
+    assert [b.name() for b in station.objects] == [o.name for o in scenario.task.objects]
     assert station.plant.time_step() == pytest.approx(2e-3)
     context = station.plant.CreateDefaultContext()
-    for body, spec in zip(station.objects, scenario.objects, strict=True):
+    for body, spec in zip(station.objects, scenario.task.objects, strict=True):
         p = station.plant.EvalBodyPoseInWorld(context, body).translation()
-        np.testing.assert_allclose(p, [*spec.position, scenario.object_size / 2], atol=1e-12)
-    for hand, start in zip(station.hands, scenario.hand_start, strict=True):
+        np.testing.assert_allclose(p, [*spec.position, scenario.table.object_size / 2], atol=1e-12)
+    for hand, start in zip(station.hands, scenario.robot.hand_start, strict=True):
         p = station.plant.EvalBodyPoseInWorld(context, hand).translation()
         np.testing.assert_allclose(p, [*start, TRAVEL_HEIGHT], atol=1e-12)
     assert goal_colour("red") != goal_colour("green") != goal_colour("blue")
@@ -135,7 +134,7 @@ def test_station_reads_the_model_and_places_objects():
 
 def test_station_rejects_arm_bases_that_differ_from_the_model():
     scenario = one_object_scenario()
-    scenario.arm_bases = [[0.4, 0.3], [-0.3, 0.3]]
+    scenario.robot.arm_bases = [[0.4, 0.3], [-0.3, 0.3]]
     with pytest.raises(ValueError, match="arm_bases"):
         AddStation(DiagramBuilder(), scenario)
 
@@ -226,7 +225,7 @@ def test_every_pair_of_hand_positions_eq_16_allows_keeps_the_arms_apart():
     §V-D range (which holds §V-C's), hands at the travel or the grasp height, SceneGraph finds the
     arms at least 5 cm apart (1 cm is the goal; the rest is room for the controller)."""
     poser = ArmPoser()
-    gap = one_object_scenario().hand_gap
+    gap = one_object_scenario().robot.hand_gap
     xs, ys = np.arange(-0.9, 0.901, 0.15), np.arange(-0.3, 0.901, 0.15)
     least, k = np.inf, 0
     for xl in xs:
@@ -400,10 +399,11 @@ def test_controller_output_reaches_the_reference_and_unwraps():
 
 def test_measured_state_at_rest_matches_the_scenario():
     scenario = load_scenario("table1_vc")
-    rig = Rig(scenario, empty_plan(scenario.n_objects, np.array(scenario.hand_start)))
+    rig = Rig(scenario, empty_plan(scenario.n_objects, np.array(scenario.robot.hand_start)))
     x = rig.advance(0.2)
-    np.testing.assert_allclose(x["hand_pos"], scenario.hand_start, atol=1e-4)
-    np.testing.assert_allclose(x["object_pos"], [o.position for o in scenario.objects], atol=1e-4)
+    np.testing.assert_allclose(x["hand_pos"], scenario.robot.hand_start, atol=1e-4)
+    np.testing.assert_allclose(x["object_pos"], [o.position for o in scenario.task.objects],
+                               atol=1e-4)
     np.testing.assert_allclose(x["object_vel"], 0.0, atol=1e-3)
     np.testing.assert_array_equal(x["grasp"], 0.0)
 

@@ -48,7 +48,7 @@ class MpcPlanner(LeafSystem):
         self._state = self.DeclareAbstractState(AbstractValue.Make(initial))
         self._last = self.DeclareAbstractState(AbstractValue.Make(None))
         self._measured = self.DeclareVectorInputPort("measured_state", 8 + 6 * self._n)
-        goals = {k: list(v) for k, v in scenario.goals.items()}
+        goals = {k: list(v) for k, v in scenario.task.goals.items()}
         self._goals = self.DeclareAbstractInputPort("goals", AbstractValue.Make(goals))
         self._plan = self.DeclareAbstractOutputPort(
             "plan", lambda: AbstractValue.Make(initial.plan), self._calc_plan,
@@ -56,7 +56,7 @@ class MpcPlanner(LeafSystem):
         self._replan = self.DeclareAbstractOutputPort(
             "replan", lambda: AbstractValue.Make(None), self._calc_replan,
             prerequisites_of_calc={self.abstract_state_ticket(self._last)})
-        self.DeclarePeriodicUnrestrictedUpdateEvent(scenario.dt, 0.0, self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(scenario.robot.dt, 0.0, self._update)
 
     def close(self, context=None) -> None:
         """Stop a search still running in the background (the simulation is over)."""
