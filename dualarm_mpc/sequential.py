@@ -25,7 +25,10 @@ from dualarm_mpc.spec import Specification, rule_formulas, specification
 
 log = logging.getLogger(__name__)
 
-CHECK_CAP_AFTER = 4  # horizons without a plan before the largest one is checked (plan_step)
+# Seconds a step may go without a plan before the largest horizon is checked (plan_step): the
+# check costs up to CAP_CHECK_TIME_S, wasted when the step has a plan, so only a step that has
+# already spent several times that is checked.
+CHECK_CAP_AFTER_S = 10.0
 CAP_CHECK_TIME_S = 3.0  # the whole of that check
 
 
@@ -107,19 +110,20 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     (wall time, everything included).
 
     With the skeleton search and a specification whose feasibility is monotone in T
-    (:meth:`Specification.monotone_in_horizon`), once ``CHECK_CAP_AFTER`` horizons had no
-    plan the largest one is checked by the search's relaxations alone
+    (:meth:`Specification.monotone_in_horizon`), once the step went ``CHECK_CAP_AFTER_S``
+    without a plan the largest one is checked by the search's relaxations alone
     (:func:`search.horizon_ruled_out`, a few seconds at most): if they rule it out, no horizon
     has a plan, and the conflict is diagnosed at once instead of after every horizon."""
     t0 = time.perf_counter()
     cap = scenario.solver.max_horizon
     last = None
     monotone = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
-    for n, T in enumerate(range(predict_horizon(scenario, state, spec), cap + 1)):
+    for T in range(predict_horizon(scenario, state, spec), cap + 1):
         _stop_if_asked(options)
-        if monotone and n == CHECK_CAP_AFTER and T < cap and \
-                horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
-            raise PlanningError(diagnose(scenario, state, spec, None, options))
+        if monotone and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
+            monotone = False  # once
+            if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
+                raise PlanningError(diagnose(scenario, state, spec, None, options))
         res = solve_horizon(scenario, state, spec, T, options)
         _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
         if on_try:
