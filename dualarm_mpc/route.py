@@ -159,3 +159,30 @@ def _visits(model: Model, state: State, n: int, a: int,
     lo, hi = float(model.goals[n].lo[a]) - h, float(model.goals[n].hi[a]) + h
     deliver = ((lo, hi, 0.0),) if n in no_throw else ((lo, hi, 0.0), (lo, hi, 2 * model.dt))
     return ((p - h, p + h, 0.0),), deliver
+
+
+def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int],
+                  cap: int) -> int:
+    """A lower bound on the horizon of any plan delivering m_o of the objects, when no-throw
+    (18) holds for every one of them (else 0); ``cap + 1``: none within ``cap``.
+
+    Under no-throw the first hand to hold an object delivers it before it lets go, hand-over
+    or not, so every plan has, for some m_o objects and some choice of the hand that first
+    holds each, both hands' routes: the bound is the least over those choices of the slower
+    hand's route bound. Each choice stops at the first hand whose bound reaches the best so
+    far (its routes are counted only that far)."""
+    if not set(range(model.n_objects)) <= no_throw:
+        return 0
+    best = cap + 1
+    for delivered in itertools.combinations(range(model.n_objects), m_o):
+        for hands in itertools.product(range(2), repeat=m_o):
+            slower = 0
+            for i in range(2):
+                share = tuple(n for n, h in zip(delivered, hands, strict=True) if h == i)
+                if share:
+                    slower = max(slower, route_steps(model, state, i, share, no_throw,
+                                                     best - 1))
+                if slower >= best:
+                    break
+            best = min(best, slower)
+    return best

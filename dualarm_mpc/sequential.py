@@ -18,6 +18,7 @@ import numpy as np
 from dualarm_mpc.horizon import StepResult, solve_step, solver_options
 from dualarm_mpc.mld import REST_TOL, Model, Rect, State, delivered, in_goal, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
+from dualarm_mpc.route import horizon_bound
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
 from dualarm_mpc.solver import SolveOptions, Status
@@ -73,13 +74,18 @@ def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon
 
 def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> int:
     """predictT: the smallest horizon the reachability bound does not rule out (§IV-C.2) — the
-    m_o-th smallest step at which an object of the step can first be in its goal."""
+    m_o-th smallest step at which an object of the step can first be in its goal — or, where
+    no-throw (18) holds for every object of the step, the route bound of the hands
+    (:func:`route.horizon_bound`) if larger: the horizons below either have no plan."""
     objects = list(spec.objects)
     model = Model.from_scenario(scenario, objects)
     cap = scenario.solver.max_horizon
-    reach = reachability(model, state.select(objects), cap)
+    local = state.select(objects)
+    reach = reachability(model, local, cap)
     first = np.sort(reach.first_goal)
-    return int(min(max(first[spec.m_o - 1], 1), cap))
+    no_throw = frozenset(objects.index(j) for j in spec.released_only_in_goal())
+    routes = horizon_bound(model, local, spec.m_o, no_throw, cap)
+    return int(min(max(first[spec.m_o - 1], routes, 1), cap))
 
 
 def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> list[int]:

@@ -2,8 +2,9 @@
 
 Soundness is what matters: when the bound says hand i needs more than T steps to deliver a set,
 the one-hand program of horizon T (the search's relaxation, the same MILP the search would
-solve) must be infeasible. Checked at T = bound − 1 on seeded random states — moving hands,
-both rules, sets of one and two objects — and the bound is checked to be worth having.
+solve) must be infeasible; when the step bound says no plan delivers m_o objects within T, the
+monolithic MILP must have none. Checked at T = bound − 1 on seeded random states — moving
+hands, both rules, sets of one and two objects — and the bound is checked to be worth having.
 """
 
 from __future__ import annotations
@@ -13,9 +14,9 @@ import itertools
 import numpy as np
 import pytest
 
-from dualarm_mpc.horizon import HorizonProgram
+from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.mld import N_HANDS, Model, State
-from dualarm_mpc.route import axis_steps, route_steps
+from dualarm_mpc.route import axis_steps, horizon_bound, route_steps
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.search import restricted
 from dualarm_mpc.solver import SolveOptions, Status
@@ -89,3 +90,22 @@ def test_under_no_throw_a_hand_finishes_one_object_before_the_next() -> None:
     # object down is bounded by the slower trip alone.
     assert pair > max(singles[:2]) + 3
     assert free == max(route_steps(model, state, 0, (n,), frozenset(), 40) for n in (0, 1))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("seed", "m_o"), [(0, 1), (1, 2), (2, 2), (3, 2)])
+def test_the_step_bound_never_rules_out_a_horizon_the_monolithic_milp_allows(seed, m_o) -> None:
+    """Under no-throw, every plan's hands make the routes of some m_o objects, hand-overs or
+    not: at one step below the bound the whole MILP (both hands, every rule) has no plan."""
+    scenario = load_scenario("table1_vd", {"rule": 1, "seed": seed, "delivery": "reach",
+                                           "m_o": m_o, "n_o": 3,
+                                           "random_objects": {"count": 3}})
+    rng = np.random.default_rng(seed)
+    state = _random_state(scenario, [0, 1, 2], rng)
+    spec = specification(scenario, [0, 1, 2])
+    bound = horizon_bound(Model.from_scenario(scenario, [0, 1, 2]), state,
+                          m_o, frozenset({0, 1, 2}), scenario.solver.max_horizon)
+    assert bound > 1
+    res = solve_step(scenario, state, spec, bound - 1,
+                     SolveOptions(time_limit_s=120.0, mip_rel_gap=1.0))
+    assert res.status is Status.INFEASIBLE, bound
