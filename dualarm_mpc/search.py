@@ -21,7 +21,9 @@ leaving out the rule instances that mention the other hand's objects separates a
 program per hand: hand i delivers S_i = {j ∈ D : h_j = i} alone, and the sum of their optima
 bounds the node from below. A hand's optimum only grows with S_i (an object can
 always be left untouched), so before its program is solved c_i(S) ≥ max over solved subsets.
-An object j handed over (h_j = BOTH) is bounded by c(j), both hands delivering j alone.
+An object j handed over (h_j = BOTH) is bounded by c(j), both hands delivering j alone. Before
+any of these is solved, the route bound (``route.py``) may show that hand i cannot deliver S_i
+within the horizon at all.
 
 *Search.* A feasibility pass (first solutions only) decides whether the horizon has a plan and
 gives the first incumbent. Then pop the node of least bound; solve what its bound still lacks;
