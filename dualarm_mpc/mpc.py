@@ -39,7 +39,7 @@ import numpy as np
 
 from dualarm_mpc.horizon import StepResult, solver_options
 from dualarm_mpc.mld import REST_SPEED, Model, Rect, State, at_rest, in_goal, reachability
-from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp
+from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.sequential import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.solver import Interrupt, SolveOptions, Status
@@ -290,7 +290,7 @@ class Replanner:
         hand_vel = np.clip(m.hand_vel, -sc.robot.max_speed, sc.robot.max_speed)
         obj_pos, obj_vel = np.array(m.object_pos, float), np.array(m.object_vel, float)
         obj_vel[np.linalg.norm(obj_vel, axis=1) < STILL_SPEED] = 0.0
-        k = int(np.floor((t - s.plan.t0) / s.plan.dt + 1e-9))
+        k, _ = step_at(s.plan, t)
         traj = s.plan.trajectory
         if 0 <= k < len(traj.hand_pos) and s.step_objects:
             # Hands on position alone: at a release the interpolator deliberately keeps the
@@ -346,10 +346,10 @@ def _arriving(sc: Scenario, state: State) -> np.ndarray:
     return inside & moving & ~state.grasp.any(axis=0)
 
 
-def _resting(sc: Scenario, state: State, released: np.ndarray | bool) -> np.ndarray:
+def _resting(sc: Scenario, state: State, released: np.ndarray) -> np.ndarray:
     """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
-    counts where ``released`` (per object, or for all): the hand has nothing left to do with it
-    and lets go when it moves on."""
+    counts where ``released`` (N,): the hand has nothing left to do with it and lets go when it
+    moves on."""
     inside = np.array([in_goal(state.object_pos[j], sc.task.goals[o.goal])
                        for j, o in enumerate(sc.task.objects)])
     return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
@@ -362,7 +362,7 @@ def _kept(plan: TimedTrajectory, t: float) -> np.ndarray:
     held at rest in its goal 1e-7 m short of its target box (a solver tolerance) with the hand at
     the edge of its range, the shortest feasible horizon stayed 2 for 185 s."""
     traj = plan.trajectory
-    k = int(np.floor((t - plan.t0) / plan.dt + 1e-9))
+    k, _ = step_at(plan, t)
     if not 0 <= k < len(traj.object_pos):
         return np.zeros(traj.object_pos.shape[1], bool)
     rest = traj.object_pos[k:]

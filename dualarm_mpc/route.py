@@ -170,7 +170,8 @@ def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int]
     or not, so every plan has, for some m_o objects and some choice of the hand that first
     holds each, both hands' routes: the bound is the least over those choices of the slower
     hand's route bound. Each choice stops at the first hand whose bound reaches the best so
-    far (its routes are counted only that far)."""
+    far. Routes are counted up to ``cap``, as the search counts them, so that the search finds
+    them in the cache of :func:`axis_steps`."""
     if not set(range(model.n_objects)) <= no_throw:
         return 0
     best = cap + 1
@@ -180,8 +181,7 @@ def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int]
             for i in range(2):
                 share = tuple(n for n, h in zip(delivered, hands, strict=True) if h == i)
                 if share:
-                    slower = max(slower, route_steps(model, state, i, share, no_throw,
-                                                     best - 1))
+                    slower = max(slower, route_steps(model, state, i, share, no_throw, cap))
                 if slower >= best:
                     break
             best = min(best, slower)

@@ -36,6 +36,7 @@ than every open bound.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import itertools
 import time
@@ -251,8 +252,8 @@ class StepSearch:
         _, i, share = key
         if self._route(i, share) > self.horizon:
             return _INFEASIBLE
-        if not share and (idle := self._idle(restricted(self.spec, (), ()))) is not None:
-            return idle
+        if not share and self._idle is not None:
+            return self._idle
         floor = np.zeros(N_HANDS)
         floor[i] = self._hand_bound(i, share)
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
@@ -271,16 +272,17 @@ class StepSearch:
                            tuple(self._local[j] for j in share), self._no_throw,
                            self.scenario.solver.max_horizon)
 
-    def _idle(self, spec: Specification) -> StepResult | None:
-        """The plan of no force and no grasp, optimal at cost zero if it satisfies ``spec`` and
-        the model: a hand with nothing to deliver, where nothing is held or moving, needs no
-        solve."""
+    @functools.cached_property
+    def _idle(self) -> StepResult | None:
+        """The plan of no force and no grasp, optimal at cost zero for a hand with nothing to
+        deliver if it satisfies the model and what is left of the rules (where nothing is held
+        or moving): that hand's relaxation needs no solve."""
         if self._held or np.abs(self.state.hand_vel).max(initial=0) > 0:
             return None
         n = len(self.spec.objects)
         traj = replay(self._model, self._program.local_state, np.zeros((self.horizon, N_HANDS, 2)),
                       np.zeros((self.horizon + 1, N_HANDS, n), int))
-        if not self._feasible(traj, spec):
+        if not self._feasible(traj, restricted(self.spec, (), ())):
             return None
         return StepResult(Status.OPTIMAL, self.horizon, traj, 0.0, 0.0, 0.0, 0.0, 0, None)
 

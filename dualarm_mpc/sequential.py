@@ -123,11 +123,11 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     t0 = time.perf_counter()
     cap = scenario.solver.max_horizon
     last = None
-    monotone = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
+    check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
     for T in range(predict_horizon(scenario, state, spec), cap + 1):
         _stop_if_asked(options)
-        if monotone and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
-            monotone = False  # once
+        if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
+            check_cap = False  # once
             if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
                 raise PlanningError(diagnose(scenario, state, spec, None, options))
         res = solve_horizon(scenario, state, spec, T, options)
