@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc import program
@@ -23,6 +25,7 @@ from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
 from dualarm_mpc.mld import Model, Rect, State, in_goal, reachability, replay
 from dualarm_mpc.plan import Trajectory
+from dualarm_mpc.route import Order
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import (
     SolveOptions,
@@ -148,7 +151,8 @@ class HorizonProgram:
 
     def standard_form(self, spec: Specification, allowed: np.ndarray | None = None,
                       hands: tuple[int, ...] = (0, 1), grasp: np.ndarray | None = None,
-                      floor: np.ndarray | None = None) -> StandardForm:
+                      floor: np.ndarray | None = None, orders: tuple[Order, ...] = ()
+                      ) -> StandardForm:
         """The MILP of ``spec`` in standard form, narrowed for the skeleton search:
 
         * ``allowed`` (2, n_step): η_ij(k ≥ 1) = 0 where false (which hand may hold what);
@@ -156,7 +160,10 @@ class HorizonProgram:
           out of the way of eq. 16: a relaxation);
         * ``grasp`` (T+1, 2, n_step): every η fixed;
         * ``floor`` (2,): proven lower bounds on each costed hand's Σ_k ‖u_i(k)‖₁ as rows,
-          which lift the LP bound (otherwise near zero)."""
+          which lift the LP bound (otherwise near zero);
+        * ``orders`` (``route.Order``, one per hand at most): each hand grabs the objects of
+          its order in that order — η_ij(k) ≤ Σ_{k' < k} η_ij'(k') for j' the one before j —
+          and none before its route allows (η_ij(k) = 0, θ_j(k) = 0 there)."""
         f = self._specified(spec)
         f = dataclasses.replace(f, c=f.c.copy(), col_lb=f.col_lb.copy(), col_ub=f.col_ub.copy())
         f.c[: len(self._hand_cost[0])] = sum(self._hand_cost[i] for i in hands)
@@ -170,7 +177,24 @@ class HorizonProgram:
             for i in hands:
                 if floor[i] > 0:
                     f = f.with_row(self.x.force_abs[:, i].ravel(), lb=float(floor[i]))
+        for order in orders:
+            f = self._ordered(f, order)
         return f
+
+    def _ordered(self, f: StandardForm, order: Order) -> StandardForm:
+        eta = self.x.eta[:, order.hand]
+        for n, grab, goal in zip(order.objects, order.grab, order.goal, strict=True):
+            f.col_ub[eta[:grab, n]] = 0.0
+            f.col_ub[self.x.theta[:goal, n]] = 0.0
+        rows, cols, vals, m = [], [], [], 0
+        for before, after in itertools.pairwise(order.objects):
+            for k in range(1, self.horizon + 1):  # row m: η_after(k) − Σ_{k'<k} η_before(k') ≤ 0
+                rows += [m] * k
+                cols += [eta[k, after], *eta[1:k, before]]
+                vals += [1.0] + [-1.0] * (k - 1)
+                m += 1
+        a = sp.csr_matrix((vals, (rows, cols)), shape=(m, len(f.c)))
+        return f.with_rows(a, np.full(m, -np.inf), np.zeros(m))
 
     def solve(self, spec: Specification, options: SolveOptions,
               start: Callable[[program.HorizonVariables], Start] | None = None,

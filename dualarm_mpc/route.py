@@ -17,10 +17,13 @@ A visit is a set of hand states:
   velocity (docs/model.md), so from the last held step k it ends in G_j when
   p_hand(k) + 2Δt·v_hand(k) ∈ G_j ⊕ h_j.
 
-Visits are chained in the order of a route. When no-throw (18) holds for every object of the
-set, an object is released only in its goal, so the hand finishes one object before it grabs
-the next (eq. 15) and the routes are the orders of the set; otherwise a hand could put an
-object down on the way and come back for it, and the bound is that of the slowest object alone.
+Visits are chained in the order of a route: every object is grabbed before it is delivered.
+An object under no-throw (18) is released only in its goal, so the hand delivers it before it
+grabs anything else (eq. 15): its two visits are adjacent. Any other object may be put down on
+the way and fetched later, so its visits may enclose other objects' visits (the visits between,
+such as fetching it again, are left out: fewer visits only relax). The bound is the least over
+these routes; with more than two objects that may be put down it is the largest over pairs of
+them instead, which spares the 90 routes of three.
 
 Nothing else enters (no other rule, no other hand, no eq. 16): every plan of one hand's program
 makes these visits, so when the bound exceeds a horizon, the program has no plan there.
@@ -30,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -107,20 +111,32 @@ def _step(axis: Axis, poly: Polygon) -> Polygon:
 
 
 @functools.lru_cache(maxsize=8192)
-def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
-               cap: int) -> int:
-    """The fewest steps T ≤ ``cap`` after which one axis of a hand starting at ``start``
-    (position, velocity) has made every visit in order, each at a step ≥ 1 (several may share
-    one), and is at rest; ``cap + 1`` if none. A visit is a union of slabs. Pure, so cached:
-    the horizons of a sequential step ask the same questions."""
+def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
+               cap: int) -> tuple[int, ...]:
+    """The earliest step of each visit when one axis of a hand starting at ``start``
+    (position, velocity) makes ``visits`` in order, each at a step ≥ 1 (several may share
+    one), and last the fewest steps T ≤ ``cap`` after which it is also at rest; ``cap + 1``
+    for what it cannot reach. A visit is a union of slabs. Pure, so cached: the horizons of a
+    sequential step ask the same questions."""
     stages: list[Polygon] = [[start]] + [[] for _ in visits]
+    times = [cap + 1] * (len(visits) + 1)
     for k in range(1, cap + 1):
         stages = [_step(axis, p) for p in stages]
         for m, slabs in enumerate(visits, start=1):
             stages[m] = _union([stages[m]] + [_slab(stages[m - 1], *s) for s in slabs])
+            if stages[m] and times[m - 1] > cap:
+                times[m - 1] = k
         if _slab(stages[-1], -_EPS, _EPS, speed=True):
-            return k
-    return cap + 1
+            times[-1] = k
+            break
+    return tuple(times)
+
+
+def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
+               cap: int) -> int:
+    """The fewest steps after which one axis has made ``visits`` and is at rest
+    (:func:`axis_times`)."""
+    return axis_times(axis, start, visits, cap)[-1]
 
 
 def route_steps(model: Model, state: State, hand: int, objects: tuple[int, ...],
@@ -135,21 +151,73 @@ def route_steps(model: Model, state: State, hand: int, objects: tuple[int, ...],
             return 0
     if not objects:
         return 0
-    if len(objects) > 1 and not set(objects) <= no_throw:  # it may put one down on the way
-        return max(route_steps(model, state, hand, (n,), no_throw, cap) for n in objects)
+    if len(set(objects) - no_throw) > 2:
+        return max(route_steps(model, state, hand, pair, no_throw, cap)
+                   for pair in itertools.combinations(objects, 2))
     ws: Rect = model.workspace
     best = cap + 1
-    for order in itertools.permutations(objects):
+    for route in _routes(objects, no_throw):
         worst = 0
         for a in range(2):
             axis = (model.dt, model.v_max, model.u_max, float(ws.lo[a]), float(ws.hi[a]))
-            visits = tuple(v for n in order for v in _visits(model, state, n, a, no_throw))
+            visits = tuple(_visits(model, state, n, a, no_throw)[kind] for n, kind in route)
             start = (float(state.hand_pos[hand, a]), float(state.hand_vel[hand, a]))
             worst = max(worst, axis_steps(axis, start, visits, cap))
             if worst >= best:
                 break
         best = min(best, worst)
     return best
+
+
+@dataclass(frozen=True)
+class Order:
+    """One order in which a hand delivers a set of no-throw objects, and what its route bounds:
+    the earliest step at which each object can be first grabbed and first in its goal, and the
+    fewest steps of the whole route (at rest)."""
+
+    hand: int
+    objects: tuple[int, ...]
+    grab: tuple[int, ...]
+    goal: tuple[int, ...]
+    steps: int
+
+
+def orders(model: Model, state: State, hand: int, objects: tuple[int, ...],
+           no_throw: frozenset[int], cap: int) -> list[Order]:
+    """Every order in which ``hand`` can deliver ``objects`` (all under no-throw, at rest, not
+    held, not in their goal) within ``cap`` steps, the shortest route first. Under no-throw a
+    plan delivers them one after another, so every plan of the hand follows one of these
+    orders and makes each visit no earlier than its order's route allows."""
+    ws: Rect = model.workspace
+    found = []
+    for order in itertools.permutations(objects):
+        times = np.zeros(2 * len(order) + 1, int)
+        for a in range(2):
+            axis = (model.dt, model.v_max, model.u_max, float(ws.lo[a]), float(ws.hi[a]))
+            visits = tuple(v for n in order for v in _visits(model, state, n, a, no_throw))
+            start = (float(state.hand_pos[hand, a]), float(state.hand_vel[hand, a]))
+            times = np.maximum(times, axis_times(axis, start, visits, cap))
+        if times[-1] <= cap:
+            found.append(Order(hand, order, tuple(int(t) for t in times[0:-1:2]),
+                               tuple(int(t) for t in times[1:-1:2]), int(times[-1])))
+    return sorted(found, key=lambda o: o.steps)
+
+
+def _routes(objects: tuple[int, ...], no_throw: frozenset[int]):
+    """Every order of the visits (object, 0: grab / 1: deliver) in which each object is
+    grabbed before it is delivered, and delivered right after its grab under no-throw."""
+    if not objects:
+        yield ()
+        return
+    for n in objects:  # the first object grabbed
+        rest = tuple(m for m in objects if m != n)
+        for tail in _routes(rest, no_throw):
+            if n in no_throw:
+                yield ((n, 0), (n, 1)) + tail
+                continue
+            for k in range(len(tail) + 1):  # its delivery after any prefix of the rest,
+                if k == 0 or tail[k - 1][1] or tail[k - 1][0] not in no_throw:  # not inside
+                    yield ((n, 0),) + tail[:k] + ((n, 1),) + tail[k:]  # a no-throw pair
 
 
 def _visits(model: Model, state: State, n: int, a: int,

@@ -69,7 +69,7 @@ from dualarm_mpc.ltl import (
     conj,
 )
 from dualarm_mpc.mld import N_HANDS, Rect, State, in_goal, replay, violations
-from dualarm_mpc.route import route_steps
+from dualarm_mpc.route import Order, orders, route_steps
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, instances
@@ -224,14 +224,48 @@ class StepSearch:
         return time.perf_counter() > self._deadline or (stop is not None and stop.is_set())
 
     def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
-               start=None, floor=None, exact: bool = True) -> StepResult:
-        """One subprogram; ``exact`` false stops at its first solution (a feasibility probe)."""
+               start: StepResult | None = None, floor=None, orders=(),
+               exact: bool = True) -> StepResult:
+        """One subprogram, MIP-started from ``start``'s plan if given; ``exact`` false stops at
+        its first solution (a feasibility probe)."""
         remaining = max(self._deadline - time.perf_counter(), 1e-3)
         options = replace(self.options, time_limit_s=remaining, heuristics=False)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
-        return self._program.solve(spec, options, start, allowed=allowed, hands=hands,
-                                   grasp=grasp, floor=floor)
+        values = None if start is None or start.solution is None else \
+            (lambda x, v=start.solution: v)
+        return self._program.solve(spec, options, values, allowed=allowed, hands=hands,
+                                   grasp=grasp, floor=floor, orders=orders)
+
+    def _by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
+                  start: StepResult | None = None, floor=None, exact: bool = True) -> StepResult:
+        """A program split by the order in which each hand delivers its share (``shares``,
+        one per hand; see :meth:`_orders`): its optimum is the best of the parts', and a probe
+        stops at the first part with a plan. ``start`` starts the part its plan follows."""
+        split = [o for o in (self._orders(i, share) for i, share in shares) if o is not None]
+        if not split:
+            return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact)
+        results = []
+        for orders in itertools.product(*split):  # the shortest routes first
+            res = self._solve(spec, allowed, hands, floor=floor, orders=orders, exact=exact,
+                              start=start if all(_follows(start, o) for o in orders) else None)
+            if not exact and res.status.has_solution:
+                return res
+            results.append(res)
+        return _best(results)
+
+    def _orders(self, i: int, share: tuple[int, ...]) -> list[Order] | None:
+        """The orders in which hand i can deliver ``share`` within the horizon
+        (``route.orders``), where no-throw (18) holds for two of its objects or more, at rest
+        and not held: every plan then delivers them one after another, and the program of
+        each order is much tighter than the whole (no object is grabbed, or in its goal,
+        before its order's route allows). None where the split does not apply."""
+        local = tuple(self._local[j] for j in share)
+        if len(share) < 2 or not set(local) <= self._no_throw or not self._route(i, share):
+            return None
+        return [o for o in orders(self._model, self._program.local_state, i, local,
+                                  self._no_throw, self.scenario.solver.max_horizon)
+                if o.steps <= self.horizon]
 
     def _mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
         allowed = np.zeros((N_HANDS, len(self.spec.objects)), bool)
@@ -259,11 +293,9 @@ class StepSearch:
         if np.isinf(floor[i]):  # a subset is infeasible: so is the share
             return _INFEASIBLE
         probe = self._relax.get(key)  # its first solution starts the exact solve
-        start = None if probe is None or probe.solution is None else \
-            (lambda x, v=probe.solution: v)
-        return self._solve(restricted(self.spec, share, share),
-                           self._mask([(i, j) for j in share] + held), hands=(i,), floor=floor,
-                           start=start, exact=exact)
+        return self._by_order(restricted(self.spec, share, share),
+                              self._mask([(i, j) for j in share] + held), [(i, share)],
+                              hands=(i,), floor=floor, start=probe, exact=exact)
 
     def _route(self, i: int, share: tuple[int, ...]) -> int:
         """The route bound (``route.py``): fewer steps than this and hand i cannot deliver
@@ -320,14 +352,16 @@ class StepSearch:
         return replace(self.spec, targets=node.delivered, m_o=len(node.delivered),
                        task_form="counting")
 
-    def joint(self, node: Node, start=None, exact: bool = True) -> StepResult:
+    def joint(self, node: Node, start: StepResult | None = None,
+              exact: bool = True) -> StepResult:
         """The node's own program: the monolithic one restricted to the skeleton."""
         pairs = [(i, j) for j, h in zip(node.delivered, node.hands, strict=True)
                  for i in range(N_HANDS) if h in (i, BOTH)]
         pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
         floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
-        return self._solve(self._node_spec(node), self._mask(pairs), start=start, floor=floor,
-                           exact=exact)
+        return self._by_order(self._node_spec(node), self._mask(pairs),
+                              [(i, node.share(i)) for i in range(N_HANDS)], start=start,
+                              floor=floor, exact=exact)
 
     # -- bounds -------------------------------------------------------------------------------
 
@@ -492,7 +526,7 @@ class StepSearch:
         if composed is not None and composed.cost <= lb * (1 + self.options.mip_rel_gap) + 1e-9:
             return composed
         if composed is not None and composed.solution is not None:
-            res = self.joint(node, start=lambda x, v=composed.solution: v)
+            res = self.joint(node, start=composed)
         else:
             res = self.joint(node)
         if composed is not None and composed.cost < res.cost:
@@ -560,6 +594,32 @@ class StepSearch:
 
 _UNKNOWN = StepResult(Status.ERROR, 0, None, np.inf, 0.0, 0.0, np.inf, 0, None)
 _INFEASIBLE = replace(_UNKNOWN, status=Status.INFEASIBLE, bound=np.inf)
+
+
+def _follows(plan: StepResult | None, order: Order) -> bool:
+    """Whether ``plan``'s hand first grabs the objects of ``order`` in its order."""
+    if plan is None or plan.trajectory is None:
+        return False
+    grasp = plan.trajectory.grasp[1:, order.hand]
+    first = [int(np.argmax(grasp[:, n])) if grasp[:, n].any() else len(grasp)
+             for n in order.objects]
+    return first == sorted(first)
+
+
+def _best(results: list[StepResult]) -> StepResult:
+    """The best of a program's parts (which together cover its plans): its solution, and the
+    least of their bounds; optimal when every part is closed."""
+    bound = min((_bound(r) for r in results), default=np.inf)
+    found = [r for r in results if r.status.has_solution]
+    if not found:
+        if np.isinf(bound):
+            return _INFEASIBLE
+        undecided = [r for r in results if r.status is not Status.INFEASIBLE]
+        return replace(undecided[0], bound=bound)
+    best = min(found, key=lambda r: r.cost)
+    closed = all(r.status in (Status.OPTIMAL, Status.INFEASIBLE) for r in results)
+    return replace(best, status=Status.OPTIMAL if closed else Status.FEASIBLE,
+                   bound=min(bound, best.cost))
 
 
 def _bound(res: StepResult) -> float:

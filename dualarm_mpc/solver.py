@@ -162,8 +162,13 @@ class StandardForm:
         """A copy with the row ``lb ≤ Σ_i x[index_i] ≤ ub`` added."""
         row = sp.csr_matrix((np.ones(len(index)), (np.zeros(len(index), int), index)),
                             shape=(1, len(self.c)))
-        return replace(self, A=sp.vstack([self.A, row], format="csr"),
-                       row_lb=np.append(self.row_lb, lb), row_ub=np.append(self.row_ub, ub))
+        return self.with_rows(row, np.array([lb]), np.array([ub]))
+
+    def with_rows(self, rows: sp.spmatrix, lb: np.ndarray, ub: np.ndarray) -> StandardForm:
+        """A copy with the rows ``lb ≤ rows·x ≤ ub`` added."""
+        return replace(self, A=sp.vstack([self.A, rows], format="csr"),
+                       row_lb=np.concatenate([self.row_lb, lb]),
+                       row_ub=np.concatenate([self.row_ub, ub]))
 
 
 def standard_form(prog: MathematicalProgram) -> StandardForm:
