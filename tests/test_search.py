@@ -61,6 +61,18 @@ def test_the_paper_rules_let_undelivered_objects_stay_untouched(rule: int) -> No
     assert untouchable(spec, state, [0]) == {1, 2}
 
 
+def test_an_object_held_outside_the_step_leaves_the_others_untouchable() -> None:
+    # The state covers every object of the scenario, the step only some: a hand still holding
+    # object 0 (delivered by an earlier step) says nothing about the step's objects 1 and 2.
+    s = scene(1)
+    state = State.initial(s)
+    spec = specification(s, [1, 2])
+    outside = dataclasses.replace(state, grasp=np.array([[1, 0, 0], [0, 0, 0]]))
+    assert untouchable(spec, outside, [2]) == {1}
+    inside = dataclasses.replace(state, grasp=np.array([[0, 1, 0], [0, 0, 0]]))
+    assert untouchable(spec, inside, [2]) == frozenset()
+
+
 def test_a_rule_that_needs_an_object_touched_keeps_it_free() -> None:
     s = scene(2, rules=("F eta[1,3]",))
     state = State.initial(s)
