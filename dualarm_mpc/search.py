@@ -224,11 +224,12 @@ class StepSearch:
 
     def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
                start: StepResult | None = None, floor=None, orders=(),
-               exact: bool = True) -> StepResult:
+               exact: bool = True, cutoff: float = np.inf) -> StepResult:
         """One subprogram, MIP-started from ``start``'s plan if given; ``exact`` false stops at
-        its first solution (a feasibility probe)."""
+        its first solution (a feasibility probe). With a ``cutoff``, "infeasible" means no plan
+        cheaper than it (``SolveOptions.cutoff``)."""
         remaining = max(self._deadline - time.perf_counter(), 1e-3)
-        options = replace(self.options, time_limit_s=remaining, heuristics=False)
+        options = replace(self.options, time_limit_s=remaining, heuristics=False, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
         values = None if start is None or start.solution is None else \
@@ -237,17 +238,22 @@ class StepSearch:
                                    grasp=grasp, floor=floor, orders=orders)
 
     def _by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
-                  start: StepResult | None = None, floor=None, exact: bool = True) -> StepResult:
+                  start: StepResult | None = None, floor=None, exact: bool = True,
+                  cutoff: float = np.inf) -> StepResult:
         """A program split by the order in which each hand delivers its share (``shares``,
-        one per hand; see :meth:`_orders`): its optimum is the best of the parts', and a probe
-        stops at the first part with a plan. ``start`` starts the part its plan follows."""
+        one per hand; see :meth:`_orders`): its optimum is the best of the parts', each part
+        solved against the best plan of those before (a cutoff), and a probe stops at the
+        first part with a plan. ``start`` starts the part its plan follows."""
         split = [o for o in (self._orders(i, share) for i, share in shares) if o is not None]
         if not split:
-            return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact)
+            return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
+                               cutoff=cutoff)
         results = []
         for orders in itertools.product(*split):  # the shortest routes first
+            best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
             res = self._solve(spec, allowed, hands, floor=floor, orders=orders, exact=exact,
-                              start=start if all(_follows(start, o) for o in orders) else None)
+                              start=start if all(_follows(start, o) for o in orders) else None,
+                              cutoff=best if exact else np.inf)
             if not exact and res.status.has_solution:
                 return res
             results.append(res)
@@ -351,16 +357,17 @@ class StepSearch:
         return replace(self.spec, targets=node.delivered, m_o=len(node.delivered),
                        task_form="counting")
 
-    def joint(self, node: Node, start: StepResult | None = None,
-              exact: bool = True) -> StepResult:
-        """The node's own program: the monolithic one restricted to the skeleton."""
+    def joint(self, node: Node, start: StepResult | None = None, exact: bool = True,
+              cutoff: float = np.inf) -> StepResult:
+        """The node's own program: the monolithic one restricted to the skeleton; with a
+        ``cutoff``, "infeasible" means no plan cheaper than it."""
         pairs = [(i, j) for j, h in zip(node.delivered, node.hands, strict=True)
                  for i in range(N_HANDS) if h in (i, BOTH)]
         pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
         floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
         return self._by_order(self._node_spec(node), self._mask(pairs),
                               [(i, node.share(i)) for i in range(N_HANDS)], start=start,
-                              floor=floor, exact=exact)
+                              floor=floor, exact=exact, cutoff=cutoff)
 
     # -- bounds -------------------------------------------------------------------------------
 
@@ -515,22 +522,21 @@ class StepSearch:
                 return False
         return True
 
-    def evaluate(self, node: Node) -> StepResult:
-        """The node's optimum: composed from both hands' solutions when they fit together
-        (directly or with their grasps kept), else the joint node program."""
+    def evaluate(self, node: Node, incumbent: float = np.inf) -> StepResult:
+        """The node's optimum if it is below ``incumbent`` ("infeasible" if none is): composed
+        from both hands' solutions when they fit together (directly or with their grasps
+        kept), else the joint node program, solved against the better of the two."""
         if node.handed_over or node.free:
-            return self.joint(node)
+            return self.joint(node, cutoff=incumbent)
         lb = self.bound(node)
         composed = self.compose(node)
         if composed is not None and composed.cost <= lb * (1 + self.options.mip_rel_gap) + 1e-9:
             return composed
-        if composed is not None and composed.solution is not None:
-            res = self.joint(node, start=composed)
-        else:
-            res = self.joint(node)
-        if composed is not None and composed.cost < res.cost:
-            return composed
-        return res
+        if composed is None:
+            return self.joint(node, cutoff=incumbent)
+        res = self.joint(node, start=composed if composed.solution is not None else None,
+                         cutoff=min(incumbent, composed.cost))
+        return composed if composed.cost < res.cost else res
 
     def run(self) -> StepResult:
         """The optimum of the horizon (as the monolithic MILP), or why there is none."""
@@ -566,7 +572,7 @@ class StepSearch:
                 self.fetch((k, True) for k in need[:BATCH])
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
-            res = self.evaluate(node)
+            res = self.evaluate(node, np.inf if best is None else best.cost)
             if res.status.has_solution and (best is None or res.cost < best.cost):
                 best = res
             if res.status in (Status.FEASIBLE, Status.TIME_LIMIT):

@@ -79,6 +79,10 @@ class SolveOptions:
     # heuristics took half of their time (docs/search.md, "Solver settings"); other backends
     # ignore the field.
     heuristics: bool = True
+    # Only solutions below this objective are wanted: a program with none ends "infeasible",
+    # which here means "nothing below the cutoff". HiGHS prunes by it (objective_bound); other
+    # backends ignore it and return their optimum, which is then at or above it.
+    cutoff: float = np.inf
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)
 

@@ -79,6 +79,20 @@ def test_an_infeasible_milp(backend) -> None:
 
 
 @pytest.mark.parametrize("backend", EVERY)
+def test_a_cutoff_asks_only_for_cheaper_solutions(backend) -> None:
+    """Above the optimum a cutoff changes nothing; below it, HiGHS proves that nothing is
+    cheaper ("infeasible"), and a backend that ignores it returns its optimum, above it."""
+    prog, _ = knapsack()  # optimum −6.5, with an objective constant
+    above = solve(prog, options(backend, cutoff=-6.0))
+    assert above.status is Status.OPTIMAL and above.objective == pytest.approx(-6.5)
+    below = solve(prog, options(backend, cutoff=-7.0))
+    if backend == "highs":
+        assert below.status is Status.INFEASIBLE
+    else:
+        assert below.status is Status.INFEASIBLE or below.objective >= -7.0
+
+
+@pytest.mark.parametrize("backend", EVERY)
 def test_a_pure_lp_is_bounded_by_its_optimum(backend) -> None:
     prog = MathematicalProgram()
     x = prog.NewContinuousVariables(2, "x")
