@@ -75,7 +75,7 @@ from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, instances
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
-BATCH = 2  # relaxations solved at once in the best-first loop
+BATCH = 2  # relaxations, or nodes, solved at once in the best-first loop
 
 
 # --- rule instances ----------------------------------------------------------------------------
@@ -331,15 +331,18 @@ class StepSearch:
     def fetch(self, requests: Iterable[tuple[tuple, bool]]) -> None:
         """Solve the relaxations asked for and not known yet, on every worker at once."""
         todo = list(dict.fromkeys((k, e) for k, e in requests if self._wanted(k, e)))
-        if len(todo) > 1 and self.pool is not None:
-            results = list(self.pool.map(lambda ke: self._compute(*ke), todo))
-        else:
-            results = [self._compute(k, e) for k, e in todo]
+        results = self._map(lambda ke: self._compute(*ke), todo)
         for (key, exact), res in zip(todo, results, strict=True):
             self._relax[key] = res
             self.stats.relaxations += 1
             if exact:
                 self._exact.add(key)
+
+    def _map(self, f, items: list) -> list:
+        """``f`` over ``items``, on every worker at once."""
+        if len(items) > 1 and self.pool is not None:
+            return list(self.pool.map(f, items))
+        return [f(item) for item in items]
 
     def relaxation(self, key: tuple, exact: bool = True) -> StepResult:
         self.fetch([(key, exact)])
@@ -572,11 +575,24 @@ class StepSearch:
                 self.fetch((k, True) for k in need[:BATCH])
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
-            res = self.evaluate(node, np.inf if best is None else best.cost)
-            if res.status.has_solution and (best is None or res.cost < best.cost):
-                best = res
-            if res.status in (Status.FEASIBLE, Status.TIME_LIMIT):
-                undecided = min(undecided, max(lb, _bound(res)))
+            # The next nodes whose bounds are complete and below the incumbent are evaluated
+            # beside it, against the same incumbent: usually they would be next anyway.
+            batch = [(lb, node)]
+            while heap and len(batch) < BATCH:
+                _, _, other = heap[0]
+                lb_other = self.bound(other)
+                if self.missing(other) or np.isinf(lb_other) or (
+                        best is not None and lb_other >= best.cost * (1 - gap) - 1e-9):
+                    break
+                heapq.heappop(heap)
+                batch.append((lb_other, other))
+            incumbent = np.inf if best is None else best.cost
+            results = self._map(lambda n: self.evaluate(n, incumbent), [n for _, n in batch])
+            for (lb_node, _), res in zip(batch, results, strict=True):
+                if res.status.has_solution and (best is None or res.cost < best.cost):
+                    best = res
+                if res.status in (Status.FEASIBLE, Status.TIME_LIMIT):
+                    undecided = min(undecided, max(lb_node, _bound(res)))
         open_bound = min([undecided] + [self.bound(n) for _, _, n in heap])
         self.stats.cpu_time_s = time.process_time() - cpu0
         wall = time.perf_counter() - t0
