@@ -261,12 +261,13 @@ class StepSearch:
 
     def _orders(self, i: int, share: tuple[int, ...]) -> list[Order] | None:
         """The orders in which hand i can deliver ``share`` within the horizon
-        (``route.orders``), where no-throw (18) holds for two of its objects or more, at rest
-        and not held: every plan then delivers them one after another, and the program of
-        each order is much tighter than the whole (no object is grabbed, or in its goal,
-        before its order's route allows). None where the split does not apply."""
+        (``route.orders``), where no-throw (18) holds for all of its objects, at rest and not
+        held: every plan then delivers them one after another, and the program of each order
+        is much tighter than the whole (no object is grabbed, or in its goal, before its
+        order's route allows; for one object, that alone). None where the split does not
+        apply."""
         local = tuple(self._local[j] for j in share)
-        if len(share) < 2 or not set(local) <= self._no_throw or not self._route(i, share):
+        if not share or not set(local) <= self._no_throw or not self._route(i, share):
             return None
         return [o for o in orders(self._model, self._program.local_state, i, local,
                                   self._no_throw, self.scenario.solver.max_horizon)
