@@ -17,13 +17,12 @@ A visit is a set of hand states:
   velocity (docs/model.md), so from the last held step k it ends in G_j when
   p_hand(k) + 2Δt·v_hand(k) ∈ G_j ⊕ h_j.
 
-Visits are chained in the order of a route: every object is grabbed before it is delivered.
-An object under no-throw (18) is released only in its goal, so the hand delivers it before it
-grabs anything else (eq. 15): its two visits are adjacent. Any other object may be put down on
-the way and fetched later, so its visits may enclose other objects' visits (the visits between,
-such as fetching it again, are left out: fewer visits only relax). The bound is the least over
-these routes; with more than two objects that may be put down it is the largest over pairs of
-them instead, which spares the 90 routes of three.
+Visits are chained in the order of a route. When no-throw (18) holds for every object of the
+set, an object is released only in its goal, so the hand finishes one object before it grabs
+the next (eq. 15) and the routes are the orders of the set; otherwise a hand could put an
+object down on the way and come back for it, and the bound is that of the slowest object alone.
+(Routes that interleave two objects' visits, the first put down on the way, bound that case
+more tightly, but measured under rule 2 they cost more time than they save.)
 
 Nothing else enters (no other rule, no other hand, no eq. 16): every plan of one hand's program
 makes these visits, so when the bound exceeds a horizon, the program has no plan there.
@@ -151,18 +150,13 @@ def route_steps(model: Model, state: State, hand: int, objects: tuple[int, ...],
             return 0
     if not objects:
         return 0
-    if len(set(objects) - no_throw) > 2:
-        return max(route_steps(model, state, hand, pair, no_throw, cap)
-                   for pair in itertools.combinations(objects, 2))
-    ws: Rect = model.workspace
+    if len(objects) > 1 and not set(objects) <= no_throw:  # it may put one down on the way
+        return max(route_steps(model, state, hand, (n,), no_throw, cap) for n in objects)
     best = cap + 1
-    for route in _routes(objects, no_throw):
+    for order in itertools.permutations(objects):
         worst = 0
         for a in range(2):
-            axis = (model.dt, model.v_max, model.u_max, float(ws.lo[a]), float(ws.hi[a]))
-            visits = tuple(_visits(model, state, n, a, no_throw)[kind] for n, kind in route)
-            start = (float(state.hand_pos[hand, a]), float(state.hand_vel[hand, a]))
-            worst = max(worst, axis_steps(axis, start, visits, cap))
+            worst = max(worst, axis_steps(*_route(model, state, hand, order, a, no_throw), cap))
             if worst >= best:
                 break
         best = min(best, worst)
@@ -188,36 +182,25 @@ def orders(model: Model, state: State, hand: int, objects: tuple[int, ...],
     held, not in their goal) within ``cap`` steps, the shortest route first. Under no-throw a
     plan delivers them one after another, so every plan of the hand follows one of these
     orders and makes each visit no earlier than its order's route allows."""
-    ws: Rect = model.workspace
     found = []
     for order in itertools.permutations(objects):
         times = np.zeros(2 * len(order) + 1, int)
         for a in range(2):
-            axis = (model.dt, model.v_max, model.u_max, float(ws.lo[a]), float(ws.hi[a]))
-            visits = tuple(v for n in order for v in _visits(model, state, n, a, no_throw))
-            start = (float(state.hand_pos[hand, a]), float(state.hand_vel[hand, a]))
-            times = np.maximum(times, axis_times(axis, start, visits, cap))
+            times = np.maximum(times, axis_times(*_route(model, state, hand, order, a, no_throw),
+                                                 cap))
         if times[-1] <= cap:
             found.append(Order(hand, order, tuple(int(t) for t in times[0:-1:2]),
                                tuple(int(t) for t in times[1:-1:2]), int(times[-1])))
     return sorted(found, key=lambda o: o.steps)
 
 
-def _routes(objects: tuple[int, ...], no_throw: frozenset[int]):
-    """Every order of the visits (object, 0: grab / 1: deliver) in which each object is
-    grabbed before it is delivered, and delivered right after its grab under no-throw."""
-    if not objects:
-        yield ()
-        return
-    for n in objects:  # the first object grabbed
-        rest = tuple(m for m in objects if m != n)
-        for tail in _routes(rest, no_throw):
-            if n in no_throw:
-                yield ((n, 0), (n, 1)) + tail
-                continue
-            for k in range(len(tail) + 1):  # its delivery after any prefix of the rest,
-                if k == 0 or tail[k - 1][1] or tail[k - 1][0] not in no_throw:  # not inside
-                    yield ((n, 0),) + tail[:k] + ((n, 1),) + tail[k:]  # a no-throw pair
+def _route(model: Model, state: State, hand: int, order: tuple[int, ...], a: int,
+           no_throw: frozenset[int]) -> tuple[Axis, tuple[float, float], tuple]:
+    """Axis a of ``hand`` delivering ``order``: the axis, its start and the visits in turn."""
+    ws: Rect = model.workspace
+    axis = (model.dt, model.v_max, model.u_max, float(ws.lo[a]), float(ws.hi[a]))
+    start = (float(state.hand_pos[hand, a]), float(state.hand_vel[hand, a]))
+    return axis, start, tuple(v for n in order for v in _visits(model, state, n, a, no_throw))
 
 
 def _visits(model: Model, state: State, n: int, a: int,
