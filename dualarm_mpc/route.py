@@ -220,20 +220,28 @@ def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int]
     Under no-throw the first hand to hold an object delivers it before it lets go, hand-over
     or not, so every plan has, for some m_o objects and some choice of the hand that first
     holds each, both hands' routes: the bound is the least over those choices of the slower
-    hand's route bound. Each choice stops at the first hand whose bound reaches the best so
-    far. Routes are counted up to ``cap``, as the search counts them, so that the search finds
-    them in the cache of :func:`axis_steps`."""
+    hand's route bound. A hand's route is no shorter than that of any one of its objects, so
+    the choices go in the order of that cheap bound, and stop once it reaches the best so far.
+    Routes are counted up to ``cap``, as the search counts them, so that the search finds them
+    in the cache of :func:`axis_steps`."""
     if not set(range(model.n_objects)) <= no_throw:
         return 0
+    single = [[route_steps(model, state, i, (n,), no_throw, cap) for n in range(model.n_objects)]
+              for i in range(2)]
+    choices = sorted(
+        (max(single[h][n] for n, h in zip(delivered, hands, strict=True)), delivered, hands)
+        for delivered in itertools.combinations(range(model.n_objects), m_o)
+        for hands in itertools.product(range(2), repeat=m_o))
     best = cap + 1
-    for delivered in itertools.combinations(range(model.n_objects), m_o):
-        for hands in itertools.product(range(2), repeat=m_o):
-            slower = 0
-            for i in range(2):
-                share = tuple(n for n, h in zip(delivered, hands, strict=True) if h == i)
-                if share:
-                    slower = max(slower, route_steps(model, state, i, share, no_throw, cap))
-                if slower >= best:
-                    break
-            best = min(best, slower)
+    for quick, delivered, hands in choices:
+        if quick >= best:
+            break
+        slower = quick
+        for i in range(2):
+            share = tuple(n for n, h in zip(delivered, hands, strict=True) if h == i)
+            if len(share) > 1:
+                slower = max(slower, route_steps(model, state, i, share, no_throw, cap))
+            if slower >= best:
+                break
+        best = min(best, slower)
     return best
