@@ -30,8 +30,8 @@ makes these visits, so when the bound exceeds a horizon, the program has no plan
 
 from __future__ import annotations
 
-import functools
 import itertools
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,26 +109,48 @@ def _step(axis: Axis, poly: Polygon) -> Polygon:
     return _slab(_slab(poly, -v_max, v_max, speed=True), lo, hi)
 
 
-@functools.lru_cache(maxsize=8192)
+class _Propagation:
+    """One axis along one route, propagated step by step only as far as it has been asked:
+    the horizons of a sequential step ask the same questions, each a little further."""
+
+    def __init__(self, axis: Axis, start: tuple[float, float],
+                 visits: tuple[tuple[Slab, ...], ...]) -> None:
+        self.axis, self.visits, self.k = axis, visits, 0
+        self.stages: list[Polygon] = [[start]] + [[] for _ in visits]
+        self.times: list[int | None] = [None] * (len(visits) + 1)  # None: not within k
+
+    def advance(self, cap: int) -> None:
+        while self.k < cap and self.times[-1] is None:
+            self.k += 1
+            self.stages = [_step(self.axis, p) for p in self.stages]
+            for m, slabs in enumerate(self.visits, start=1):
+                self.stages[m] = _union([self.stages[m]]
+                                        + [_slab(self.stages[m - 1], *s) for s in slabs])
+                if self.stages[m] and self.times[m - 1] is None:
+                    self.times[m - 1] = self.k
+            if _slab(self.stages[-1], -_EPS, _EPS, speed=True):
+                self.times[-1] = self.k
+
+
+_PROPAGATIONS: dict[tuple, _Propagation] = {}
+_PROPAGATIONS_LOCK = threading.Lock()  # the search's workers ask too
+
+
 def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
                cap: int) -> tuple[int, ...]:
     """The earliest step of each visit when one axis of a hand starting at ``start``
     (position, velocity) makes ``visits`` in order, each at a step ≥ 1 (several may share
     one), and last the fewest steps T ≤ ``cap`` after which it is also at rest; ``cap + 1``
-    for what it cannot reach. A visit is a union of slabs. Pure, so cached: the horizons of a
-    sequential step ask the same questions."""
-    stages: list[Polygon] = [[start]] + [[] for _ in visits]
-    times = [cap + 1] * (len(visits) + 1)
-    for k in range(1, cap + 1):
-        stages = [_step(axis, p) for p in stages]
-        for m, slabs in enumerate(visits, start=1):
-            stages[m] = _union([stages[m]] + [_slab(stages[m - 1], *s) for s in slabs])
-            if stages[m] and times[m - 1] > cap:
-                times[m - 1] = k
-        if _slab(stages[-1], -_EPS, _EPS, speed=True):
-            times[-1] = k
-            break
-    return tuple(times)
+    for what it cannot reach. A visit is a union of slabs. Pure, so kept and resumed."""
+    key = (axis, start, visits)
+    with _PROPAGATIONS_LOCK:
+        run = _PROPAGATIONS.get(key)
+        if run is None:
+            if len(_PROPAGATIONS) >= 8192:
+                _PROPAGATIONS.clear()
+            run = _PROPAGATIONS[key] = _Propagation(axis, start, visits)
+        run.advance(cap)
+        return tuple(cap + 1 if t is None or t > cap else t for t in run.times)
 
 
 def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
@@ -155,8 +177,9 @@ def route_steps(model: Model, state: State, hand: int, objects: tuple[int, ...],
     best = cap + 1
     for order in itertools.permutations(objects):
         worst = 0
-        for a in range(2):
-            worst = max(worst, axis_steps(*_route(model, state, hand, order, a, no_throw), cap))
+        for a in range(2):  # counted only as far as the best order so far
+            worst = max(worst, axis_steps(*_route(model, state, hand, order, a, no_throw),
+                                          best - 1))
             if worst >= best:
                 break
         best = min(best, worst)
@@ -221,9 +244,8 @@ def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int]
     or not, so every plan has, for some m_o objects and some choice of the hand that first
     holds each, both hands' routes: the bound is the least over those choices of the slower
     hand's route bound. A hand's route is no shorter than that of any one of its objects, so
-    the choices go in the order of that cheap bound, and stop once it reaches the best so far.
-    Routes are counted up to ``cap``, as the search counts them, so that the search finds them
-    in the cache of :func:`axis_steps`."""
+    the choices go in the order of that cheap bound, and stop once it reaches the best so far;
+    each route is counted only as far as the best so far (the search resumes it later)."""
     if not set(range(model.n_objects)) <= no_throw:
         return 0
     single = [[route_steps(model, state, i, (n,), no_throw, cap) for n in range(model.n_objects)]
@@ -240,7 +262,7 @@ def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int]
         for i in range(2):
             share = tuple(n for n, h in zip(delivered, hands, strict=True) if h == i)
             if len(share) > 1:
-                slower = max(slower, route_steps(model, state, i, share, no_throw, cap))
+                slower = max(slower, route_steps(model, state, i, share, no_throw, best - 1))
             if slower >= best:
                 break
         best = min(best, slower)

@@ -269,9 +269,8 @@ class StepSearch:
         local = tuple(self._local[j] for j in share)
         if not share or not set(local) <= self._no_throw or not self._route(i, share):
             return None
-        return [o for o in orders(self._model, self._program.local_state, i, local,
-                                  self._no_throw, self.scenario.solver.max_horizon)
-                if o.steps <= self.horizon]
+        return orders(self._model, self._program.local_state, i, local, self._no_throw,
+                      self.horizon)
 
     def _mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
         allowed = np.zeros((N_HANDS, len(self.spec.objects)), bool)
@@ -304,11 +303,10 @@ class StepSearch:
                               hands=(i,), floor=floor, start=probe, exact=exact)
 
     def _route(self, i: int, share: tuple[int, ...]) -> int:
-        """The route bound (``route.py``): fewer steps than this and hand i cannot deliver
-        ``share`` whatever the rest of the plan does."""
+        """The route bound (``route.py``), counted up to the horizon: more steps than the
+        horizon and hand i cannot deliver ``share`` in it, whatever the rest of the plan does."""
         return route_steps(self._model, self._program.local_state, i,
-                           tuple(self._local[j] for j in share), self._no_throw,
-                           self.scenario.solver.max_horizon)
+                           tuple(self._local[j] for j in share), self._no_throw, self.horizon)
 
     @functools.cached_property
     def _idle(self) -> StepResult | None:
