@@ -200,6 +200,9 @@ class StepSearch:
     handover: str = "auto"  # "auto", "always" or "never": see nodes()
     pool: ThreadPoolExecutor | None = None  # workers for independent relaxations
     stats: SearchStats = field(default_factory=SearchStats)
+    # The relaxations with a plan at the horizon below (a step tries its horizons one by one):
+    # each plan, idled one more step, stands for this horizon's feasibility probe.
+    below: dict[tuple, StepResult] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self._relax: dict[tuple, StepResult] = {}
@@ -232,9 +235,7 @@ class StepSearch:
         options = replace(self.options, time_limit_s=remaining, heuristics=False, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
-        values = None if start is None or start.solution is None else \
-            (lambda x, v=start.solution: v)
-        return self._program.solve(spec, options, values, allowed=allowed, hands=hands,
+        return self._program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
                                    grasp=grasp, floor=floor, orders=orders)
 
     def _by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
@@ -284,6 +285,10 @@ class StepSearch:
         # An object held now may stay held by either hand: untouching it is not free (it would
         # slide off), so every relaxation leaves it as the node programs may.
         held = [(i, j) for j in self._held for i in range(N_HANDS)]
+        if not exact and key in self.below:
+            idled = self._idled(self.below[key], key)
+            if idled is not None:
+                return idled
         if key[0] == "alone":
             j = key[1]
             return self._solve(restricted(self.spec, (j,), (j,)),
@@ -307,6 +312,22 @@ class StepSearch:
         horizon and hand i cannot deliver ``share`` in it, whatever the rest of the plan does."""
         return route_steps(self._model, self._program.local_state, i,
                            tuple(self._local[j] for j in share), self._no_throw, self.horizon)
+
+    def _idled(self, plan: StepResult, key: tuple) -> StepResult | None:
+        """``plan`` of the horizon below with one more step of rest, if it is a plan of this
+        horizon's relaxation ``key`` (re-simulated and checked: true whenever the relaxation's
+        specification survives idling, as the paper's rules do)."""
+        traj = plan.trajectory
+        if traj is None or len(traj.force) != self.horizon - 1:
+            return None
+        traj = replay(self._model, self._program.local_state,
+                      np.concatenate([traj.force, np.zeros((1, N_HANDS, 2))]),
+                      np.concatenate([traj.grasp, traj.grasp[-1:]]))
+        share = (key[1],) if key[0] == "alone" else key[2]
+        if not self._feasible(traj, restricted(self.spec, share, share)):
+            return None
+        return StepResult(Status.FEASIBLE, self.horizon, traj, plan.cost, 0.0, 0.0, np.inf, 0,
+                          None)
 
     @functools.cached_property
     def _idle(self) -> StepResult | None:
@@ -616,6 +637,18 @@ _UNKNOWN = StepResult(Status.ERROR, 0, None, np.inf, 0.0, 0.0, np.inf, 0, None)
 _INFEASIBLE = replace(_UNKNOWN, status=Status.INFEASIBLE, bound=np.inf)
 
 
+def _start(plan: StepResult | None):
+    """A MIP start from ``plan``: its solver values, or else (a plan re-simulated, not solved)
+    its forces and grasps, which the solver completes."""
+    if plan is None or plan.trajectory is None:
+        return None
+    if plan.solution is not None:
+        return lambda x, v=plan.solution: v
+    traj = plan.trajectory
+    return lambda x: (np.concatenate([x.force.ravel(), x.eta.ravel()]),
+                      np.concatenate([traj.force.ravel(), traj.grasp.ravel()]).astype(float))
+
+
 def _follows(plan: StepResult | None, order: Order) -> bool:
     """Whether ``plan``'s hand first grabs the objects of ``order`` in its order."""
     if plan is None or plan.trajectory is None:
@@ -653,11 +686,12 @@ def _bound(res: StepResult) -> float:
 
 @contextmanager
 def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None):
+               options: SolveOptions | None, below: dict | None = None):
     """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
     options = options or solver_options(scenario)
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool)
+        yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool,
+                         below={} if below is None else below)
 
 
 def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
@@ -681,11 +715,18 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 
 
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                options: SolveOptions | None = None) -> StepResult:
-    """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`."""
+                options: SolveOptions | None = None,
+                below: dict[tuple, StepResult] | None = None) -> StepResult:
+    """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
+    ``below``: the relaxations with a plan at ``horizon − 1`` (:attr:`StepSearch.below`),
+    replaced by this horizon's, for the next horizon of the same step."""
     t0 = time.perf_counter()
-    with _searching(scenario, state, spec, horizon, options) as search:
-        if not search.feasible():
-            return search.result(None, np.inf, time.perf_counter() - t0)
-        res = search.run()
+    with _searching(scenario, state, spec, horizon, options, below) as search:
+        if search.feasible():
+            res = search.run()
+        else:
+            res = search.result(None, np.inf, time.perf_counter() - t0)
+    if below is not None:
+        below.clear()
+        below.update((k, r) for k, r in search._relax.items() if r.status.has_solution)
     return replace(res, solve_time_s=time.perf_counter() - t0)

@@ -63,13 +63,15 @@ def _stop_if_asked(options: SolveOptions | None) -> None:
 
 
 def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                  options: SolveOptions | None = None, start=None) -> StepResult:
+                  options: SolveOptions | None = None, start=None,
+                  below: dict | None = None) -> StepResult:
     """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
     the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
-    is a MIP start for the monolithic MILP (:func:`horizon.solve_step`)."""
+    is a MIP start for the monolithic MILP (:func:`horizon.solve_step`); ``below`` carries the
+    search's relaxations from one horizon to the next (:func:`search.search_step`)."""
     if scenario.solver.search == "monolithic":
         return solve_step(scenario, state, spec, horizon, options, start)
-    return search_step(scenario, state, spec, horizon, options)
+    return search_step(scenario, state, spec, horizon, options, below)
 
 
 def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> int:
@@ -124,13 +126,14 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     cap = scenario.solver.max_horizon
     last = None
     check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
+    below: dict = {}  # the search's relaxations with a plan, from one horizon to the next
     for T in range(predict_horizon(scenario, state, spec), cap + 1):
         _stop_if_asked(options)
         if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
             check_cap = False  # once
             if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
                 raise PlanningError(diagnose(scenario, state, spec, None, options))
-        res = solve_horizon(scenario, state, spec, T, options)
+        res = solve_horizon(scenario, state, spec, T, options, below=below)
         _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
         if on_try:
             on_try(res)
