@@ -191,6 +191,30 @@ def test_search_returns_the_monolithic_optimum_of_the_same_horizon(seed: int) ->
         assert auto.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
 
 
+@pytest.mark.parametrize("seed", [0, 3])
+def test_plans_carried_up_a_horizon_change_nothing(seed: int) -> None:
+    """A step's horizons hand their relaxations with a plan to the next one, where each, idled
+    one more step, stands for a probe: the optimum found is that of a search from scratch."""
+    s = random_scene(seed)
+    spec = specification(s, [0, 1, 2])
+    state = State.initial(s)
+    below: dict = {}
+    carried_up = 0
+    for T in range(3, 16):
+        carried = search_step(s, state, spec, T, below=below)
+        if carried.status.has_solution:
+            break
+        carried_up += len(below)
+    assert carried_up > 0  # some horizon without a plan had relaxations with one
+    fresh = search_step(s, state, spec, T)
+    assert carried.status is fresh.status is Status.OPTIMAL
+    assert carried.cost == pytest.approx(fresh.cost, rel=1e-6, abs=1e-9)
+    assert replayed_trace_satisfies(s, spec, carried)
+    assert below and all(r.horizon == T for r in below.values())
+    # Some relaxation of the accepted horizon is a plan of the one below, idled: not solved.
+    assert any(r.solution is None and r.solve_time_s == 0.0 for r in below.values())
+
+
 def test_search_statistics_count_the_work_done() -> None:
     s = random_scene(1)
     spec = specification(s, [0, 1, 2])
