@@ -364,6 +364,11 @@ class StepSearch:
             return list(self.pool.map(f, items))
         return [f(item) for item in items]
 
+    def relaxations_with_plans(self) -> dict[tuple, StepResult]:
+        """The relaxations solved so far that have a plan (for :attr:`below` of the next
+        horizon)."""
+        return {k: r for k, r in self._relax.items() if r.status.has_solution}
+
     def relaxation(self, key: tuple, exact: bool = True) -> StepResult:
         self.fetch([(key, exact)])
         return self._relax[key]
@@ -557,8 +562,7 @@ class StepSearch:
             return composed
         if composed is None:
             return self.joint(node, cutoff=incumbent)
-        res = self.joint(node, start=composed if composed.solution is not None else None,
-                         cutoff=min(incumbent, composed.cost))
+        res = self.joint(node, start=composed, cutoff=min(incumbent, composed.cost))
         return composed if composed.cost < res.cost else res
 
     def run(self) -> StepResult:
@@ -728,5 +732,5 @@ def search_step(scenario: Scenario, state: State, spec: Specification, horizon: 
             res = search.result(None, np.inf, time.perf_counter() - t0)
     if below is not None:
         below.clear()
-        below.update((k, r) for k, r in search._relax.items() if r.status.has_solution)
+        below.update(search.relaxations_with_plans())
     return replace(res, solve_time_s=time.perf_counter() - t0)
