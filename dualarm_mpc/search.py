@@ -235,8 +235,11 @@ class StepSearch:
         options = replace(self.options, time_limit_s=remaining, heuristics=False, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
-        return self._program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
-                                   grasp=grasp, floor=floor, orders=orders)
+        res = self._program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
+                                  grasp=grasp, floor=floor, orders=orders)
+        if res.status is Status.INFEASIBLE and np.isfinite(cutoff):
+            return replace(res, bound=cutoff)  # nothing cheaper than the cutoff: its bound
+        return res
 
     def _by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
                   start: StepResult | None = None, floor=None, exact: bool = True,
@@ -281,7 +284,7 @@ class StepSearch:
 
     # A relaxation is named by a key: ("hand", i, S) for c_i(S), ("alone", j) for c(j).
 
-    def _compute(self, key: tuple, exact: bool) -> StepResult:
+    def _compute(self, key: tuple, exact: bool, cutoff: float = np.inf) -> StepResult:
         # An object held now may stay held by either hand: untouching it is not free (it would
         # slide off), so every relaxation leaves it as the node programs may.
         held = [(i, j) for j in self._held for i in range(N_HANDS)]
@@ -292,7 +295,8 @@ class StepSearch:
         if key[0] == "alone":
             j = key[1]
             return self._solve(restricted(self.spec, (j,), (j,)),
-                               self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact)
+                               self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact,
+                               cutoff=cutoff)
         _, i, share = key
         if self._route(i, share) > self.horizon:
             return _INFEASIBLE
@@ -305,7 +309,8 @@ class StepSearch:
         probe = self._relax.get(key)  # its first solution starts the exact solve
         return self._by_order(restricted(self.spec, share, share),
                               self._mask([(i, j) for j in share] + held), [(i, share)],
-                              hands=(i,), floor=floor, start=probe, exact=exact)
+                              hands=(i,), floor=floor, start=probe, exact=exact,
+                              cutoff=cutoff)
 
     def _route(self, i: int, share: tuple[int, ...]) -> int:
         """The route bound (``route.py``), counted up to the horizon: more steps than the
@@ -348,10 +353,12 @@ class StepSearch:
         res = self._relax.get(key)
         return res is None or (exact and key not in self._exact and res.status.has_solution)
 
-    def fetch(self, requests: Iterable[tuple[tuple, bool]]) -> None:
-        """Solve the relaxations asked for and not known yet, on every worker at once."""
+    def fetch(self, requests: Iterable[tuple[tuple, bool]], cutoff: float = np.inf) -> None:
+        """Solve the relaxations asked for and not known yet, on every worker at once. With a
+        ``cutoff`` (the incumbent), a relaxation that cannot go below it is closed with the
+        cutoff as its bound: every node with it is then no better than the incumbent."""
         todo = list(dict.fromkeys((k, e) for k, e in requests if self._wanted(k, e)))
-        results = self._map(lambda ke: self._compute(*ke), todo)
+        results = self._map(lambda ke: self._compute(*ke, cutoff=cutoff), todo)
         for (key, exact), res in zip(todo, results, strict=True):
             self._relax[key] = res
             self.stats.relaxations += 1
@@ -596,7 +603,8 @@ class StepSearch:
                 # the same whatever the number of workers.
                 for _, _, other in heapq.nsmallest(BATCH, heap):
                     need += self.missing(other)
-                self.fetch((k, True) for k in need[:BATCH])
+                self.fetch(((k, True) for k in need[:BATCH]),
+                           cutoff=np.inf if best is None else best.cost)
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
             # The next nodes whose bounds are complete and below the incumbent are evaluated
@@ -669,10 +677,8 @@ def _best(results: list[StepResult]) -> StepResult:
     bound = min((_bound(r) for r in results), default=np.inf)
     found = [r for r in results if r.status.has_solution]
     if not found:
-        if np.isinf(bound):
-            return _INFEASIBLE
         undecided = [r for r in results if r.status is not Status.INFEASIBLE]
-        return replace(undecided[0], bound=bound)
+        return replace(undecided[0] if undecided else _INFEASIBLE, bound=bound)
     best = min(found, key=lambda r: r.cost)
     closed = all(r.status in (Status.OPTIMAL, Status.INFEASIBLE) for r in results)
     return replace(best, status=Status.OPTIMAL if closed else Status.FEASIBLE,
@@ -680,9 +686,10 @@ def _best(results: list[StepResult]) -> StepResult:
 
 
 def _bound(res: StepResult) -> float:
-    """A proven lower bound of a subprogram: +inf when it is infeasible."""
+    """A proven lower bound of a subprogram: +inf when it is infeasible, its cutoff when it
+    has nothing cheaper."""
     if res.status is Status.INFEASIBLE:
-        return np.inf
+        return res.bound
     if res.status is Status.OPTIMAL:
         return max(min(res.bound, res.cost), 0.0) if np.isfinite(res.bound) else res.cost
     return max(res.bound, 0.0) if np.isfinite(res.bound) else 0.0
