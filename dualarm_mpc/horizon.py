@@ -187,8 +187,10 @@ class HorizonProgram:
             f.col_ub[eta[:grab, n]] = 0.0
             f.col_ub[self.x.theta[:goal, n]] = 0.0
         rows, cols, vals, m = [], [], [], 0
+        first_grab = dict(zip(order.objects, order.grab, strict=True))
         for before, after in itertools.pairwise(order.objects):
-            for k in range(1, self.horizon + 1):  # row m: η_after(k) − Σ_{k'<k} η_before(k') ≤ 0
+            # row m: η_after(k) − Σ_{k'<k} η_before(k') ≤ 0; before its grab step η_after is 0
+            for k in range(max(first_grab[after], 1), self.horizon + 1):
                 rows += [m] * k
                 cols += [eta[k, after], *eta[1:k, before]]
                 vals += [1.0] + [-1.0] * (k - 1)
