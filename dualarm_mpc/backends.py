@@ -94,6 +94,7 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
     if not options.heuristics:
         for name in ("rins", "rens", "feasibility_jump", "root_reduced_cost"):
             h.setOptionValue(f"mip_heuristic_run_{name}", False)
+        h.setOptionValue("mip_allow_restart", False)
     if np.isfinite(options.cutoff):
         h.setOptionValue("objective_bound", float(options.cutoff))
     if start is not None and start.complete:
