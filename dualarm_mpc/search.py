@@ -488,6 +488,10 @@ class StepSearch:
             self.fetch((("hand", i, (j,)), False) for j in alone)
             alone = [j for j in alone
                      if self._relax[("hand", i, (j,))].status is Status.INFEASIBLE]
+        # Under no-throw (18) the first hand to hold j holds it until it is in its goal, so
+        # its route bounds c(j)'s horizon too: beyond it for both hands, c(j) has no plan.
+        alone = [j for j in alone if self._local[j] not in self._no_throw or j in self._held
+                 or min(self._route(i, (j,)) for i in range(N_HANDS)) <= self.horizon]
         self.fetch((("alone", j), False) for j in alone)
         return {j for j in alone if self._relax[("alone", j)].status is not Status.INFEASIBLE}
 
