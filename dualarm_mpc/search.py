@@ -298,14 +298,12 @@ class StepSearch:
                                self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact,
                                cutoff=cutoff)
         _, i, share = key
-        if self._route(i, share) > self.horizon:
-            return _INFEASIBLE
-        if not share and self._idle is not None:
-            return self._idle
         floor = np.zeros(N_HANDS)
         floor[i] = self._hand_bound(i, share)
-        if np.isinf(floor[i]):  # a subset is infeasible: so is the share
-            return _INFEASIBLE
+        if np.isinf(floor[i]) or self._route(i, share) > self.horizon:
+            return _INFEASIBLE  # a subset is infeasible (the cheaper test), or the route
+        if not share and self._idle is not None:
+            return self._idle
         probe = self._relax.get(key)  # its first solution starts the exact solve
         if probe is None and key in self.below:  # or the plan of the horizon below
             probe = self._idled(self.below[key], key)
