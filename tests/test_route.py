@@ -151,3 +151,26 @@ def test_splitting_a_share_by_order_keeps_its_optimum_and_every_plan(seed) -> No
         for m, n in enumerate(order.objects):
             assert first_grab[share.index(n)] >= order.grab[m]
             assert first_goal[share.index(n)] >= order.goal[m]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_under_no_throw_both_hands_deliver_an_object_no_sooner_than_one_hand_could(seed) -> None:
+    """The search skips c(j), both hands delivering j, when neither hand's route reaches j's
+    goal within the horizon: the first hand to hold j holds it until j is in its goal, hand-over
+    or not. So at one step below the lesser route bound, c(j)'s program has no plan."""
+    scenario = load_scenario("table1_vd", {"rule": 1, "seed": seed, "delivery": "reach",
+                                           "random_objects": {"count": 3}})
+    objects = [0, 1, 2]
+    state = _random_state(scenario, objects, np.random.default_rng(seed + 20))
+    spec = specification(scenario, objects)
+    model = Model.from_scenario(scenario, objects)
+    options = SolveOptions(time_limit_s=60.0, mip_rel_gap=1.0, heuristics=False)
+    for n, j in enumerate(objects):
+        bound = min(route_steps(model, state.select(objects), i, (n,), frozenset(range(3)),
+                                scenario.solver.max_horizon) for i in range(N_HANDS))
+        assert bound > 1
+        allowed = np.zeros((N_HANDS, len(objects)), bool)
+        allowed[:, n] = True
+        res = HorizonProgram(scenario, state, objects, bound - 1).solve(
+            restricted(spec, (j,), (j,)), options, allowed=allowed)
+        assert res.status is Status.INFEASIBLE, (j, bound)
