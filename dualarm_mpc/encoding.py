@@ -25,6 +25,7 @@ import numpy as np
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc.linear import Rows, bound, new_variables
+from dualarm_mpc.solver import StandardForm
 from dualarm_mpc.ltl import (
     Always,
     And,
@@ -73,7 +74,11 @@ class Encoder:
         self.resolve = resolve
         self.rows = Rows()
         self._truth: dict[tuple[Formula, int], Affine] = {}
-        self._z: list[int] = []  # truth variables of ∧/∨ nodes, bounded to [0, 1] on emit
+        # New variables are numbered after the program's and created by emit() at once (or
+        # never: standard_form() reads the rows without touching the program).
+        self._first = prog.num_vars()
+        self._z: list[int] = []  # truth variables of ∧/∨ nodes, bounded to [0, 1]
+        self._false: list[int] = []  # variables of requirements that cannot hold
         self._source = ""
 
     # -- public -------------------------------------------------------------------------------
@@ -94,10 +99,28 @@ class Encoder:
         self._row(terms, lb=m)
 
     def emit(self, description: str = "LTL") -> int:
-        """Add all rows to the program; returns the number of rows."""
+        """Add the new variables and all rows to the program; returns the number of rows."""
+        new_variables(self.prog, (self._new,), "ltl")
         bound(self.prog, np.asarray(self._z, int), 0.0, 1.0)
         self.rows.emit(self.prog, description)
         return self.rows.count
+
+    def standard_form(self) -> StandardForm:
+        """The rows over the program's variables and the new ones, as a standard form whose
+        first columns are the program's (``StandardForm.extended`` adds it to the model's);
+        the program itself is left as it was."""
+        n = self._first + self._new
+        A, lb, ub = self.rows.matrix(n)
+        col_lb, col_ub = np.full(n, -np.inf), np.full(n, np.inf)
+        col_lb[self._z], col_ub[self._z] = 0.0, 1.0
+        return StandardForm(np.zeros(n), 0.0, A, lb, ub, col_lb, col_ub, np.zeros(n, bool))
+
+    @property
+    def _new(self) -> int:
+        return len(self._z) + len(self._false)
+
+    def _variable(self) -> int:
+        return self._first + self._new
 
     # -- internals ----------------------------------------------------------------------------
 
@@ -115,7 +138,8 @@ class Encoder:
 
     def _infeasible(self) -> None:
         # A requirement that is false whatever the plan: keep the program honest (infeasible).
-        z = int(new_variables(self.prog, (1,), "ltl_false")[0])
+        z = self._variable()
+        self._false.append(z)
         self.rows.add_row([(1.0, z)], 1.0, 0.0)
 
     def _atom(self, atom: Atom, k: int, negated: bool) -> Affine:
@@ -207,7 +231,7 @@ class Encoder:
         return v
 
     def _new_truth(self) -> int:
-        z = int(new_variables(self.prog, (1,), "z")[0])
+        z = self._variable()
         self._z.append(z)
         return z
 

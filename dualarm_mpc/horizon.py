@@ -124,6 +124,10 @@ class HorizonProgram:
 
     def encode(self, prog: MathematicalProgram, spec: Specification) -> None:
         """Add ``spec`` (φ_task and the rules) to ``prog``, whose first variables are ours."""
+        self._encoder(prog, spec).emit("LTL specification")
+
+    def _encoder(self, prog: MathematicalProgram, spec: Specification) -> Encoder:
+        """``spec`` encoded over ``prog``'s variables (not yet added to it)."""
         enc = Encoder(prog, self.horizon, _resolver(spec, self.x, self.state, self.scenario))
         if spec.task_form == "counting":
             enc.require_at_least(spec.m_o, spec.events)
@@ -131,7 +135,7 @@ class HorizonProgram:
             enc.require(spec.task())
         for _, rule in spec.rules:
             enc.require(rule)
-        enc.emit("LTL specification")
+        return enc
 
     def program(self, spec: Specification) -> MathematicalProgram:
         """The whole MILP of ``spec`` as one MathematicalProgram."""
@@ -143,10 +147,8 @@ class HorizonProgram:
         """The model with ``spec``'s rows, encoded once per specification: the search solves
         the same one many times (a probe, then its exact solve; one per hand assignment)."""
         if spec not in self._forms:
-            ltl = MathematicalProgram()
-            ltl.NewContinuousVariables(self.prog.num_vars(), "model")
-            self.encode(ltl, spec)
-            self._forms[spec] = self.form.extended(standard_form(ltl))
+            ltl = self._encoder(self.prog, spec).standard_form()
+            self._forms[spec] = self.form.extended(ltl)
         return self._forms[spec]
 
     def standard_form(self, spec: Specification, allowed: np.ndarray | None = None,

@@ -63,6 +63,22 @@ class Rows:
         """Add the accumulated rows to ``prog`` as one sparse linear constraint."""
         if self.count == 0:
             return
+        rows, cols, vals, lb, ub = self._triplets()
+        used, local = np.unique(cols, return_inverse=True)
+        A = sp.csc_matrix((vals, (rows, local)), shape=(self.count, len(used)))
+        A.sum_duplicates()
+        binding = prog.AddLinearConstraint(A, lb, ub, prog.decision_variables()[used])
+        binding.evaluator().set_description(description)
+
+    def matrix(self, n_columns: int) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+        """The accumulated rows as (A, lb, ub) over ``n_columns`` variables, for a standard
+        form built without a program."""
+        rows, cols, vals, lb, ub = self._triplets()
+        A = sp.csr_matrix((vals, (rows, cols)), shape=(self.count, n_columns))
+        A.sum_duplicates()
+        return A, lb, ub
+
+    def _triplets(self):
         srows, scols, svals, brow, lbs, ubs = self._scalar
         rows = np.concatenate(self._rows + [np.asarray(srows, int)])
         cols = np.concatenate(self._cols + [np.asarray(scols, int)])
@@ -73,11 +89,7 @@ class Rows:
                                           np.asarray(ubs, float))]:
             lb[r] = lo
             ub[r] = hi
-        used, local = np.unique(cols, return_inverse=True)
-        A = sp.csc_matrix((vals, (rows, local)), shape=(self.count, len(used)))
-        A.sum_duplicates()
-        binding = prog.AddLinearConstraint(A, lb, ub, prog.decision_variables()[used])
-        binding.evaluator().set_description(description)
+        return rows, cols, vals, lb, ub
 
 
 def new_variables(prog: MathematicalProgram, shape: tuple[int, ...], name: str,
