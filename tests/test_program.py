@@ -15,7 +15,7 @@ from pydrake.solvers import MathematicalProgram
 from scenes import OBJECT1, OBJECT2
 
 from dualarm_mpc import sequential
-from dualarm_mpc.horizon import build_program, solve_step
+from dualarm_mpc.horizon import HorizonProgram, build_program, solve_step
 from dualarm_mpc.mld import Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, load_scenario
 from dualarm_mpc.solver import SolveOptions, Status, solve, standard_form
@@ -143,6 +143,21 @@ def test_a_six_object_program_reads_into_standard_form() -> None:
     prog, *_ = build_program(scenario, state, spec, 10)
     f = standard_form(prog)
     assert f.A.shape == (len(f.row_lb), prog.num_vars()) and f.A.shape[0] > 1000
+
+
+@pytest.mark.parametrize("rule", [1, 2])
+def test_a_specification_read_into_a_standard_form_directly_is_the_programs(rule: int) -> None:
+    """The search encodes a specification straight into a standard form (no MathematicalProgram
+    to read back): rows, bounds and integrality are those of the whole program."""
+    scenario = load_scenario("table1_vd", {"rule": rule, "seed": 0, "n_o": 4})
+    state = State.initial(scenario)
+    spec = specification(scenario, [0, 1, 2, 3])
+    h = HorizonProgram(scenario, state, list(spec.objects), 8)
+    direct, read = h.standard_form(spec), standard_form(h.program(spec))
+    assert direct.A.shape == read.A.shape and direct.A.shape[0] > h.form.A.shape[0]
+    assert abs(direct.A - read.A).max() == 0
+    for field in ("c", "row_lb", "row_ub", "col_lb", "col_ub", "integer"):
+        np.testing.assert_array_equal(getattr(direct, field), getattr(read, field), field)
 
 
 # --- pruning --------------------------------------------------------------------------------------
