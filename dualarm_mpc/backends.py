@@ -95,6 +95,9 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
         for name in ("rins", "rens", "feasibility_jump", "root_reduced_cost"):
             h.setOptionValue(f"mip_heuristic_run_{name}", False)
         h.setOptionValue("mip_allow_restart", False)
+        # Branch on pseudocosts from the start, without strong branching to make them reliable:
+        # the trees are small and their LP bounds weak (docs/search.md, "Solver settings").
+        h.setOptionValue("mip_pscost_minreliable", 0)
     if np.isfinite(options.cutoff):
         h.setOptionValue("objective_bound", float(options.cutoff))
     if start is not None and start.complete:
