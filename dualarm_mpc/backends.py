@@ -108,12 +108,12 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
     elif start is not None:  # HiGHS completes it by solving for the other columns
         h.setSolution(len(start.index), start.index.astype(np.int32), start.value)
     stop = options.interrupt
-    if stop is None:
-        h.run()
-    else:
-        h.HandleUserInterrupt = True
-        with stop.watch(h.cancelSolve):
-            h.run()
+    if stop is not None:
+        # Polled at HiGHS's MIP interrupt checks only: highspy's HandleUserInterrupt also
+        # hooks every simplex check, each a call into Python that waits for the GIL (a (2,5)
+        # rule-1 plan 2.19 → 2.11 s, A/B over two rounds).
+        h.cbMipInterrupt += lambda event: event.interrupt() if stop.is_set() else None
+    h.run()
     status = h.getModelStatus()
     info = h.getInfo()
     M = highspy.HighsModelStatus

@@ -90,7 +90,7 @@ class SolveOptions:
 class Interrupt:
     """A stop request for running solves, from any thread: each solve under it stops as soon
     as its solver can and ends with status "time_limit" (or "feasible" with its incumbent).
-    HiGHS and CPLEX are cancelled from the thread that sets it (:meth:`watch`); SCIP and Gurobi
+    CPLEX is cancelled from the thread that sets it (:meth:`watch`); HiGHS, SCIP and Gurobi
     poll :meth:`is_set` from their own callbacks."""
 
     def __init__(self) -> None:
