@@ -25,7 +25,6 @@ import numpy as np
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc.linear import Rows, bound, new_variables
-from dualarm_mpc.solver import StandardForm
 from dualarm_mpc.ltl import (
     Always,
     And,
@@ -41,6 +40,7 @@ from dualarm_mpc.ltl import (
     WeakNext,
     nnf,
 )
+from dualarm_mpc.solver import StandardForm
 
 
 class EncodingError(ValueError):

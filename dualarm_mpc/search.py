@@ -253,10 +253,10 @@ class StepSearch:
             return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
                                cutoff=cutoff)
         results = []
-        for orders in itertools.product(*split):  # the shortest routes first
+        for part in itertools.product(*split):  # the shortest routes first
             best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
-            res = self._solve(spec, allowed, hands, floor=floor, orders=orders, exact=exact,
-                              start=start if all(_follows(start, o) for o in orders) else None,
+            res = self._solve(spec, allowed, hands, floor=floor, orders=part, exact=exact,
+                              start=start if all(_follows(start, o) for o in part) else None,
                               cutoff=best if exact else np.inf)
             if not exact and res.status.has_solution:
                 return res
@@ -630,7 +630,8 @@ class StepSearch:
                 heapq.heappop(heap)
                 batch.append((lb_other, other))
             incumbent = np.inf if best is None else best.cost
-            results = self._map(lambda n: self.evaluate(n, incumbent), [n for _, n in batch])
+            results = self._map(lambda n, cut=incumbent: self.evaluate(n, cut),
+                                [n for _, n in batch])
             for (lb_node, _), res in zip(batch, results, strict=True):
                 if res.status.has_solution and (best is None or res.cost < best.cost):
                     best = res
