@@ -490,8 +490,9 @@ class StepSearch:
             alone = [j for j in alone
                      if self._relax[("hand", i, (j,))].status is Status.INFEASIBLE]
         # Under no-throw (18) the first hand to hold j holds it until it is in its goal, so
-        # its route bounds c(j)'s horizon too: beyond it for both hands, c(j) has no plan.
-        alone = [j for j in alone if self._local[j] not in self._no_throw or j in self._held
+        # its route bounds c(j)'s horizon too: beyond it for both hands, c(j) has no plan (the
+        # route is 0, no bound, for an object held or moving now).
+        alone = [j for j in alone if self._local[j] not in self._no_throw
                  or min(self._route(i, (j,)) for i in range(N_HANDS)) <= self.horizon]
         self.fetch((("alone", j), False) for j in alone)
         return {j for j in alone if self._relax[("alone", j)].status is not Status.INFEASIBLE}
