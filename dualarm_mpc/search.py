@@ -244,15 +244,22 @@ class StepSearch:
 
     def _by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
                   start: StepResult | None = None, floor=None, exact: bool = True,
-                  cutoff: float = np.inf) -> StepResult:
+                  cutoff: float = np.inf, spread: bool = False) -> StepResult:
         """A program split by the order in which each hand delivers its share (``shares``,
         one per hand; see :meth:`_orders`): its optimum is the best of the parts', each part
         solved against the best plan of those before (a cutoff), and a probe stops at the
-        first part with a plan. ``start`` starts the part its plan follows."""
+        first part with a plan. ``start`` starts the part its plan follows. ``spread``: the
+        parts of an exact solve run on every worker at once, each against ``cutoff`` alone
+        (for a program solved while the other worker would idle)."""
         split = [o for o in (self._orders(i, share) for i, share in shares) if o is not None]
         if not split:
             return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
                                cutoff=cutoff)
+        if spread and exact:
+            return _best(self._map(lambda part: self._solve(
+                spec, allowed, hands, floor=floor, orders=part, cutoff=cutoff,
+                start=start if all(_follows(start, o) for o in part) else None),
+                list(itertools.product(*split))))
         results = []
         for part in itertools.product(*split):  # the shortest routes first
             best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
@@ -402,7 +409,7 @@ class StepSearch:
                        task_form="counting")
 
     def joint(self, node: Node, start: StepResult | None = None, exact: bool = True,
-              cutoff: float = np.inf) -> StepResult:
+              cutoff: float = np.inf, spread: bool = False) -> StepResult:
         """The node's own program: the monolithic one restricted to the skeleton; with a
         ``cutoff``, "infeasible" means no plan cheaper than it."""
         pairs = [(i, j) for j, h in zip(node.delivered, node.hands, strict=True)
@@ -411,7 +418,7 @@ class StepSearch:
         floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
         return self._by_order(self._node_spec(node), self._mask(pairs),
                               [(i, node.share(i)) for i in range(N_HANDS)], start=start,
-                              floor=floor, exact=exact, cutoff=cutoff)
+                              floor=floor, exact=exact, cutoff=cutoff, spread=spread)
 
     # -- bounds -------------------------------------------------------------------------------
 
@@ -594,19 +601,22 @@ class StepSearch:
                 return False
         return True
 
-    def evaluate(self, node: Node, incumbent: float = np.inf) -> StepResult:
+    def evaluate(self, node: Node, incumbent: float = np.inf, spread: bool = False
+                 ) -> StepResult:
         """The node's optimum if it is below ``incumbent`` ("infeasible" if none is): composed
         from both hands' solutions when they fit together (directly or with their grasps
-        kept), else the joint node program, solved against the better of the two."""
+        kept), else the joint node program, solved against the better of the two (its order
+        parts on every worker at once with ``spread``)."""
         if node.handed_over or node.free:
-            return self.joint(node, cutoff=incumbent)
+            return self.joint(node, cutoff=incumbent, spread=spread)
         lb = self.bound(node)
         composed = self.compose(node)
         if composed is not None and composed.cost <= lb * (1 + self.options.mip_rel_gap) + 1e-9:
             return composed
         if composed is None:
-            return self.joint(node, cutoff=incumbent)
-        res = self.joint(node, start=composed, cutoff=min(incumbent, composed.cost))
+            return self.joint(node, cutoff=incumbent, spread=spread)
+        res = self.joint(node, start=composed, cutoff=min(incumbent, composed.cost),
+                         spread=spread)
         return composed if composed.cost < res.cost else res
 
     def run(self) -> StepResult:
@@ -663,8 +673,9 @@ class StepSearch:
                 heapq.heappop(heap)
                 batch.append((lb_other, other))
             incumbent = np.inf if best is None else best.cost
-            results = self._map(lambda n, cut=incumbent: self.evaluate(n, cut),
-                                [n for _, n in batch])
+            lone = len(batch) == 1  # then it spreads its order parts over the workers instead
+            results = self._map(lambda n, cut=incumbent, spread=lone: self.evaluate(
+                n, cut, spread), [n for _, n in batch])
             for (lb_node, _), res in zip(batch, results, strict=True):
                 if res.status.has_solution and (best is None or res.cost < best.cost):
                     best = res
