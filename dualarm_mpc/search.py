@@ -258,17 +258,19 @@ class StepSearch:
         if not split:
             return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
                                cutoff=cutoff)
+        parts = list(itertools.product(*split))  # the shortest routes first
+
+        def solve(part, exact=exact, cutoff=cutoff):
+            return self._solve(spec, allowed, hands, floor=floor, orders=part, exact=exact,
+                               start=start if all(_follows(start, o) for o in part) else None,
+                               cutoff=cutoff)
+
         if spread and exact:
-            return _best(self._map(lambda part: self._solve(
-                spec, allowed, hands, floor=floor, orders=part, cutoff=cutoff,
-                start=start if all(_follows(start, o) for o in part) else None),
-                list(itertools.product(*split))))
+            return _best(self._map(solve, parts))
         results = []
-        for part in itertools.product(*split):  # the shortest routes first
+        for part in parts:
             best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
-            res = self._solve(spec, allowed, hands, floor=floor, orders=part, exact=exact,
-                              start=start if all(_follows(start, o) for o in part) else None,
-                              cutoff=best if exact else np.inf)
+            res = solve(part, cutoff=best if exact else np.inf)
             if not exact and res.status.has_solution:
                 return res
             results.append(res)
