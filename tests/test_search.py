@@ -191,6 +191,24 @@ def test_search_returns_the_monolithic_optimum_of_the_same_horizon(seed: int) ->
         assert auto.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
 
 
+@pytest.mark.parametrize("seed", [2, 6, 54])
+def test_search_returns_the_monolithic_optimum_delivering_three(seed: int) -> None:
+    """m_o = 3: a hand's larger share is a pair, solved exactly and fetched ahead of the
+    feasibility pass's probes (seeds 2 and 6 hand an object over, 54 does not)."""
+    s = random_scene(seed)
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=3),
+                            solver=dataclasses.replace(s.solver, handover="always"))
+    spec = specification(s, [0, 1, 2])
+    mono = first_feasible(s, spec)
+    assert mono.status is Status.OPTIMAL
+    state = State.initial(s)
+    found = search_step(s, state, spec, mono.horizon)
+    assert found.status is Status.OPTIMAL
+    assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
+    assert replayed_trace_satisfies(s, spec, found)
+    assert search_step(s, state, spec, mono.horizon - 1).status is Status.INFEASIBLE
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_plans_carried_up_a_horizon_change_nothing(seed: int) -> None:
     """A step's horizons hand their relaxations with a plan to the next one, where each, idled
