@@ -311,10 +311,10 @@ class StepSearch:
                                self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact,
                                cutoff=cutoff)
         _, i, share = key
+        if self._share_ruled_out(i, share):
+            return _INFEASIBLE
         floor = np.zeros(N_HANDS)
         floor[i] = self._hand_bound(i, share)
-        if np.isinf(floor[i]) or self._route(i, share) > self.horizon:
-            return _INFEASIBLE  # a subset is infeasible (the cheaper test), or the route
         if not share and self._idle is not None:
             return self._idle
         probe = self._relax.get(key)  # its first solution starts the exact solve
@@ -324,6 +324,11 @@ class StepSearch:
                               self._mask([(i, j) for j in share] + held), [(i, share)],
                               hands=(i,), floor=floor, start=probe, exact=exact,
                               cutoff=cutoff)
+
+    def _share_ruled_out(self, i: int, share: tuple[int, ...]) -> bool:
+        """Whether c_i(share) is infeasible without a solve: a subset is (the cheaper test), or
+        the route exceeds the horizon."""
+        return np.isinf(self._hand_bound(i, share)) or self._route(i, share) > self.horizon
 
     def _route(self, i: int, share: tuple[int, ...]) -> int:
         """The route bound (``route.py``), counted up to the horizon: more steps than the
@@ -615,8 +620,7 @@ class StepSearch:
             for i in range(N_HANDS):
                 key = ("hand", i, node.share(i))
                 if key not in keys and self._larger(key) and self._wanted(key, False) \
-                        and np.isfinite(self._hand_bound(i, node.share(i))) \
-                        and self._route(i, node.share(i)) <= self.horizon:
+                        and not self._share_ruled_out(i, node.share(i)):
                     keys.append(key)
             if len(keys) >= FETCH:
                 break
