@@ -283,7 +283,8 @@ class Replanner:
         millimetre tracking errors, and the shifted plan stays feasible (otherwise tight plans —
         throws at full speed from the edge of the hand range — turn infeasible by a hair at every
         replan and the robot dithers). Larger deviations (a knock, a short throw, a failed grasp)
-        are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest."""
+        are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest. Hands
+        measured inside eq. (16)'s gap are moved apart (:func:`_apart`)."""
         sc = self._scenario
         ws = Rect.of(sc.robot.workspace)
         hand_pos = np.clip(m.hand_pos, ws.lo, ws.hi)
@@ -308,9 +309,27 @@ class Replanner:
         half = np.array([o.grasp_half_size for o in sc.task.objects])
         reach = np.abs(m.hand_pos[:, None] - obj_pos[None]).max(axis=2)  # (2, N)
         grasp[reach > half[None] + GRASP_SLACK] = 0
+        shift = _apart(hand_pos, hand_vel, sc.robot.hand_gap, sc.robot.dt, ws)
+        hand_pos[:, 0] += shift
         for i, j in zip(*np.nonzero(grasp), strict=True):
             obj_vel[j] = hand_vel[i]  # held: moves with its hand (eq. 8)
+            obj_pos[j, 0] += shift[i]  # and keeps its offset
         return State(hand_pos, hand_vel, obj_pos, obj_vel, grasp)
+
+
+def _apart(hand_pos: np.ndarray, hand_vel: np.ndarray, gap: float, dt: float,
+           ws: Rect) -> np.ndarray:
+    """The shift along x of each hand that restores eq. (16), x_arm2 + gap ≤ x_arm1, now and
+    one step on (where the start velocity alone takes the hands): half each, less where the
+    hand range stops one. A plan may end with the hands exactly ``gap`` apart; the controller
+    then holds them a few micrometres closer, and from that measured state every horizon
+    would be infeasible, whatever the task (the hands' positions at step 1 are fixed)."""
+    closest = min(hand_pos[0, 0] - hand_pos[1, 0],
+                  hand_pos[0, 0] - hand_pos[1, 0] + dt * (hand_vel[0, 0] - hand_vel[1, 0]))
+    deficit = max(gap - closest, 0.0)
+    room_right, room_left = ws.hi[0] - hand_pos[0, 0], hand_pos[1, 0] - ws.lo[0]
+    left = min(deficit - min(deficit / 2, room_right), room_left)
+    return np.array([min(deficit - left, room_right), -left])
 
 
 def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | None = None,

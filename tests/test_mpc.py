@@ -164,3 +164,20 @@ def test_an_object_held_still_in_its_goal_by_the_plan_in_force_is_delivered() ->
     core.close(s)
     assert r.status == "done" and s.delivered_time == (1.0,)
     assert not s.plan.trajectory.grasp.any(), "the hand lets go"
+
+
+def test_hands_measured_a_hair_inside_the_hand_gap_are_planned_from_eq_16() -> None:
+    """A plan may end with the hands exactly hand_gap apart and the controller hold them a few
+    micrometres closer (seen closed loop, §V-D rule 2 seed 1): from that state as measured every
+    horizon is infeasible, since the hands' positions one step on are fixed by the state."""
+    sc = scenario()
+    gap = sc.robot.hand_gap
+    close = dataclasses.replace(at_rest(sc), hand_pos=np.array([[gap / 2 - 4e-6, 0.0],
+                                                                [-gap / 2 + 4e-6, 0.0]]))
+    core = Replanner(sc)
+    s, r = core.step(0.0, core.initial_state(), close, sc.task.goals)
+    core.close(s)
+    assert r.status in ("optimal", "feasible")
+    start = s.plan.trajectory.hand_pos[0]
+    assert start[0, 0] - start[1, 0] >= gap - 1e-9
+    assert np.abs(start - close.hand_pos).max() < 1e-5  # moved apart by the deficit alone
