@@ -328,8 +328,10 @@ def _apart(hand_pos: np.ndarray, hand_vel: np.ndarray, gap: float, dt: float,
                   hand_pos[0, 0] - hand_pos[1, 0] + dt * (hand_vel[0, 0] - hand_vel[1, 0]))
     deficit = max(gap - closest, 0.0)
     room_right, room_left = ws.hi[0] - hand_pos[0, 0], hand_pos[1, 0] - ws.lo[0]
-    left = min(deficit - min(deficit / 2, room_right), room_left)
-    return np.array([min(deficit - left, room_right), -left])
+    right = min(deficit / 2, room_right)
+    left = min(deficit - right, room_left)
+    right = min(deficit - left, room_right)  # what the left hand could not take
+    return np.array([right, -left])
 
 
 def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | None = None,
