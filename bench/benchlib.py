@@ -19,8 +19,12 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import numpy as np
+import scipy.sparse as sp
+
 import dualarm_mpc
-from dualarm_mpc.solver import BACKENDS, installed_backends
+from dualarm_mpc.backends import highs_model
+from dualarm_mpc.solver import BACKENDS, StandardForm, installed_backends
 
 # --- command line ------------------------------------------------------------------------------
 
@@ -151,9 +155,49 @@ def git(package: Path, *args: str) -> str | None:
     return out.stdout.strip() if out.returncode == 0 else None
 
 
+def calibration() -> dict[str, float]:
+    """How fast the machine is now, by two fixed workloads that no change of ours affects (best
+    of three, seconds): a pure-Python loop, and HiGHS on a fixed 60-item, 8-row 0-1 knapsack
+    (one thread, 27 nodes with HiGHS 1.16). The same code measured 20–27 % apart on different
+    days of this machine; runs of different days compare only against these."""
+    rng = np.random.default_rng(0)
+    weight = rng.integers(10, 100, (8, 60)).astype(float)
+    value = rng.integers(10, 100, 60).astype(float)
+    knapsack = StandardForm(c=-value, c0=0.0, A=sp.csr_matrix(weight),
+                            row_lb=np.full(8, -np.inf), row_ub=weight.sum(axis=1) / 2,
+                            col_lb=np.zeros(60), col_ub=np.ones(60), integer=np.ones(60, bool))
+
+    def loop() -> None:
+        total = 0
+        for i in range(3_000_000):
+            total += i * i % 7
+
+    def milp() -> None:
+        h = highs_model(knapsack)
+        h.setOptionValue("threads", 1)
+        h.run()
+
+    def best(work: Callable[[], None]) -> float:
+        times = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            work()
+            times.append(time.perf_counter() - t0)
+        return round(min(times), 4)
+
+    return {"python_loop_s": best(loop), "highs_knapsack_s": best(milp)}
+
+
+def calibration_line(info: dict) -> str:
+    c = info["calibration"]
+    return (f"\nMachine speed at the start (lower is faster; `benchlib.calibration`): Python loop "
+            f"{c['python_loop_s']:.3f} s, HiGHS knapsack {c['highs_knapsack_s']:.3f} s\n")
+
+
 def machine() -> dict:
     """The machine and the code measured: where ``dualarm_mpc`` was imported from, its commit and
-    uncommitted changes (None outside a git checkout, e.g. a snapshot)."""
+    uncommitted changes (None outside a git checkout, e.g. a snapshot), and its speed now
+    (:func:`calibration`)."""
     package = Path(dualarm_mpc.__file__).parent
     return {
         "platform": platform.platform(), "processor": platform.processor(),
@@ -164,6 +208,7 @@ def machine() -> dict:
                     for name in installed_backends()},
         "dualarm_mpc": str(package), "git_commit": git(package, "rev-parse", "HEAD"),
         "git_changes": git(package, "status", "--porcelain", "--", "."),
+        "calibration": calibration(),
     }
 
 

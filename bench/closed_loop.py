@@ -43,7 +43,15 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
+from benchlib import (
+    calibration_line,
+    fmt,
+    machine,
+    parse_seeds,
+    table,
+    write_json_atomic,
+    write_report,
+)
 
 from dualarm_mpc.closed_loop import on_robot, simulate
 from dualarm_mpc.mld import REST_SPEED, in_goal
@@ -288,7 +296,8 @@ def main(argv: list[str] | None = None) -> int:
         records.append(record)
         print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
         write_json(args.json, args, records, info, complete=k == len(tasks))
-    text = report(records, args) + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n"
+    text = (report(records, args) + calibration_line(info)
+            + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n")
     write_report(args.json, text)
     return 1 if any(r["status"] != "ok" for r in records) else 0
 
