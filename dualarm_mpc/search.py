@@ -79,6 +79,11 @@ BATCH = 2  # nodes evaluated at once in the best-first loop
 # Relaxations solved at once there: more than the workers, so that one long program does not
 # leave the other worker idle ((3,5) rule 1, seeds 0–4: 33.4 → 31.8 s; (3,6) 31.3 → 29.1 s).
 FETCH = 4
+# The feasibility pass gives each program at first this share of the horizon's time limit, then
+# four times as much in each later round, until one has a plan or the last round has all the
+# time left: one program that runs long (a rule-2 pair at a horizon past its first plan) then
+# no longer leaves the horizon undecided while other nodes would have a plan.
+FIRST_SLICE = 1 / 16
 
 
 # --- rule instances ----------------------------------------------------------------------------
@@ -211,6 +216,7 @@ class StepSearch:
         self._relax: dict[tuple, StepResult] = {}
         self._exact: set = set()  # keys of the relaxations solved to optimality
         self._witness: StepResult | None = None  # a plan the feasibility pass found
+        self._slice = np.inf  # the time a program may take (the feasibility pass's rounds)
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
         self._deliveries: list[tuple[tuple[int, ...], frozenset[int]]] | None = None
         self._deadline = time.perf_counter() + self.options.time_limit_s
@@ -235,7 +241,7 @@ class StepSearch:
         """One subprogram, MIP-started from ``start``'s plan if given; ``exact`` false stops at
         its first solution (a feasibility probe). With a ``cutoff``, "infeasible" means no plan
         cheaper than it (``SolveOptions.cutoff``)."""
-        remaining = max(self._deadline - time.perf_counter(), 1e-3)
+        remaining = max(min(self._deadline - time.perf_counter(), self._slice), 1e-3)
         options = replace(self.options, time_limit_s=remaining, heuristics=False, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
@@ -568,19 +574,51 @@ class StepSearch:
         """Whether the horizon admits a plan, decided with feasibility probes (first solutions,
         no optimality): a node is feasible when its relaxations are and its hands' plans fit
         together or its joint program has a solution. Infeasible relaxations found here serve
-        the optimization too, and a plan found is its first incumbent."""
-        undecided = False
+        the optimization too, and a plan found is its first incumbent.
+
+        In rounds: each program may take ``FIRST_SLICE`` of the time limit, four times as much
+        in the next round, which solves again only what ran out of time; the last round has
+        all the time left. A node left undecided does not stop a round, so a node with a plan
+        later in the order is still found; the horizon is infeasible only when every node is
+        proven so, as without rounds."""
+        self._slice = FIRST_SLICE * self.options.time_limit_s
+        try:
+            while True:
+                last = self._slice >= self._deadline - time.perf_counter()
+                if self._feasible_round():
+                    self.stats.timed_out = False  # a plan decides the horizon
+                    return True
+                if not self.stats.timed_out or last or self._stopped():
+                    return self.stats.timed_out
+                self._forget_timed_out()
+                self.stats.timed_out = False
+                self._slice *= 4
+        finally:
+            self._slice = np.inf
+            self._forget_timed_out()  # cut short by a slice: the optimization solves them again
+
+    def _forget_timed_out(self) -> None:
+        out = {k for k, r in self._relax.items() if r.status is Status.TIME_LIMIT}
+        self._relax = {k: r for k, r in self._relax.items() if k not in out}
+        self._exact -= out
+
+    def _feasible_round(self) -> bool:
+        """One round of :meth:`feasible`: True when it found a plan (the witness); else
+        ``stats.timed_out`` says whether a node was left undecided."""
         single_hand = self.nodes(handed_over=False)
         for n, node in enumerate(self._probe_order()):
+            if self._stopped():
+                self.stats.timed_out = True
+                break
             if n == 1:  # past the first guess, most singles will be needed: all at once
                 self.fetch((("hand", i, (j,)), False)
                            for j in self.spec.objects for i in range(N_HANDS))
             # and so will the larger shares of the nodes after it: a few at once
             relaxed = self._relaxations_feasible(node, self._ahead(single_hand[n + 1:]) if n
                                                  else ())
-            if relaxed is None:  # a relaxation ran out of time: the horizon is undecided
+            if relaxed is None:  # a relaxation ran out of time: the node is undecided
                 self.stats.timed_out = True
-                return True
+                continue
             if not relaxed:
                 continue
             witness = None if node.handed_over or node.free else self.compose(node, exact=False)
@@ -589,13 +627,9 @@ class StepSearch:
             if witness.status.has_solution:
                 self._witness = witness
                 return True
-            undecided |= witness.status is not Status.INFEASIBLE
-            if self._stopped():
-                undecided = True
-                break
-        # Undecided: run() reports the time limit rather than an infeasible horizon.
-        self.stats.timed_out |= undecided
-        return undecided
+            if witness.status is not Status.INFEASIBLE:
+                self.stats.timed_out = True
+        return False
 
     def _relaxations_feasible(self, node: Node, ahead: Iterable[tuple] = ()) -> bool | None:
         """True when every relaxation of the node has a solution, False when one is proven

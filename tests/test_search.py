@@ -279,3 +279,51 @@ def test_the_plan_does_not_depend_on_the_number_of_workers() -> None:
         plans.append(search_step(w, State.initial(s), spec, T).trajectory)
     for a, b in zip(plans[0].arrays(), plans[1].arrays(), strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+# --- the feasibility pass in rounds ---------------------------------------------------------------
+
+
+class SlowFirstNode(StepSearch):
+    """The first node's relaxations "run out of time" while a program may take less than
+    ``needs`` seconds (no clock: the slice the pass gives decides), and record each slice."""
+
+    needs = np.inf
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        first = self.nodes(handed_over=False)[0]
+        self.slow = {("hand", i, first.share(i)) for i in (0, 1)}
+        self.slices: list[float] = []
+
+    def _compute(self, key, exact, cutoff=np.inf):
+        if key in self.slow:
+            self.slices.append(self._slice)
+            if self._slice < self.needs:
+                return dataclasses.replace(super()._compute(key, exact, cutoff),
+                                           status=Status.TIME_LIMIT, trajectory=None)
+        return super()._compute(key, exact, cutoff)
+
+
+def rounds_scene():
+    s = random_scene(3)  # m_o = 2, rule 2 with a user rule: its first node gives arm 1 both
+    return s, specification(s, [0, 1, 2])
+
+
+def test_a_node_left_undecided_does_not_hide_a_plan_of_the_next_ones() -> None:
+    s, spec = rounds_scene()
+    T = first_feasible(s, spec).horizon
+    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
+    assert search.feasible() and search._witness is not None
+    assert search.slices and set(search.slices) == {2.0}  # a sixteenth of 32 s, one round
+    assert not search.stats.timed_out  # the plan decides the horizon
+
+
+def test_the_rounds_give_what_ran_out_of_time_four_times_as_long_until_it_is_decided() -> None:
+    s, spec = rounds_scene()
+    T = first_feasible(s, spec).horizon - 1  # no plan: every node must be proven infeasible
+    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
+    search.needs = 8.0
+    assert not search.feasible() and not search.stats.timed_out
+    assert sorted(set(search.slices)) == [2.0, 8.0]
+    assert search._slice == np.inf  # the optimization after the pass has no slices
