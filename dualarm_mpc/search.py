@@ -589,6 +589,7 @@ class StepSearch:
                     self.stats.timed_out = False  # a plan decides the horizon
                     return True
                 if not self.stats.timed_out or last or self._stopped():
+                    # Undecided: True, so that run() reports the time limit, not infeasibility.
                     return self.stats.timed_out
                 self._forget_timed_out()
                 self.stats.timed_out = False
