@@ -16,6 +16,7 @@ import platform
 import subprocess
 import sys
 import time
+import timeit
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -178,12 +179,7 @@ def calibration() -> dict[str, float]:
         h.run()
 
     def best(work: Callable[[], None]) -> float:
-        times = []
-        for _ in range(3):
-            t0 = time.perf_counter()
-            work()
-            times.append(time.perf_counter() - t0)
-        return round(min(times), 4)
+        return round(min(timeit.repeat(work, number=1, repeat=3)), 4)
 
     return {"python_loop_s": best(loop), "highs_knapsack_s": best(milp)}
 

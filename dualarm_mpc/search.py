@@ -600,7 +600,8 @@ class StepSearch:
 
     def _forget_timed_out(self) -> None:
         out = {k for k, r in self._relax.items() if r.status is Status.TIME_LIMIT}
-        self._relax = {k: r for k, r in self._relax.items() if k not in out}
+        for key in out:
+            del self._relax[key]
         self._exact -= out
 
     def _feasible_round(self) -> bool:
