@@ -687,7 +687,12 @@ class StepSearch:
             return self.joint(node, cutoff=incumbent, spread=spread)
         res = self.joint(node, start=composed, cutoff=min(incumbent, composed.cost),
                          spread=spread)
-        return composed if composed.cost < res.cost else res
+        if res.cost <= composed.cost:
+            return res
+        if res.status in (Status.OPTIMAL, Status.INFEASIBLE):
+            return composed  # nothing cheaper: the composed plan is the node's optimum
+        # The joint program ran out before it proved that: the node is still open.
+        return replace(composed, status=Status.FEASIBLE, bound=_bound(res))
 
     def run(self) -> StepResult:
         """The optimum of the horizon (as the monolithic MILP), or why there is none."""

@@ -305,6 +305,33 @@ class SlowFirstNode(StepSearch):
         return super()._compute(key, exact, cutoff)
 
 
+class JointRunsOut(StepSearch):
+    """Every joint node program runs out of time before it finds or proves anything."""
+
+    joints = 0
+
+    def joint(self, node, start=None, **kw):
+        self.joints += 1
+        return dataclasses.replace(super().joint(node, start, **kw), status=Status.TIME_LIMIT,
+                                   trajectory=None, cost=np.inf, bound=-np.inf)
+
+
+def test_a_composed_plan_does_not_close_its_node_when_the_joint_program_ran_out() -> None:
+    """Seed 0's hands' plans, put together, cost more than the node's bound: only the joint
+    program can prove that they are its optimum. When it runs out of time, the composed plan
+    is the node's best, not its optimum, and the step is not proven optimal."""
+    s = random_scene(0)
+    spec = specification(s, [0, 1, 2])
+    mono = first_feasible(s, spec)
+    search = JointRunsOut(s, State.initial(s), spec, mono.horizon, SolveOptions(time_limit_s=30))
+    assert search.feasible()
+    res = search.run()
+    assert search.joints > 0
+    assert res.status is Status.FEASIBLE and res.gap > 1e-4
+    assert res.bound <= mono.cost * (1 + 1e-6) <= res.cost * (1 + 1e-6)
+    assert replayed_trace_satisfies(s, spec, res)
+
+
 def rounds_scene():
     s = random_scene(3)  # m_o = 2, rule 2 with a user rule: its first node gives arm 1 both
     return s, specification(s, [0, 1, 2])
