@@ -184,10 +184,13 @@ def calibration() -> dict[str, float]:
     return {"python_loop_s": best(loop), "highs_knapsack_s": best(milp)}
 
 
-def calibration_line(info: dict) -> str:
+def footer(info: dict, t0: float) -> str:
+    """The report's last lines: the machine's speed at the start (``info["calibration"]``) and
+    the wall time since ``t0`` (``time.perf_counter()``)."""
     c = info["calibration"]
     return (f"\nMachine speed at the start (lower is faster; `benchlib.calibration`): Python loop "
-            f"{c['python_loop_s']:.3f} s, HiGHS knapsack {c['highs_knapsack_s']:.3f} s\n")
+            f"{c['python_loop_s']:.3f} s, HiGHS knapsack {c['highs_knapsack_s']:.3f} s\n"
+            f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n")
 
 
 def machine() -> dict:

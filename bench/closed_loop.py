@@ -44,8 +44,8 @@ from pathlib import Path
 
 import numpy as np
 from benchlib import (
-    calibration_line,
     fmt,
+    footer,
     machine,
     parse_seeds,
     table,
@@ -296,8 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         records.append(record)
         print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
         write_json(args.json, args, records, info, complete=k == len(tasks))
-    text = (report(records, args) + calibration_line(info)
-            + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n")
+    text = report(records, args) + footer(info, t0)
     write_report(args.json, text)
     return 1 if any(r["status"] != "ok" for r in records) else 0
 

@@ -80,10 +80,10 @@ import closed_loop
 import numpy as np
 from benchlib import (
     Progress,
-    calibration_line,
     check_cluster_arguments,
     cluster_arguments,
     fmt,
+    footer,
     machine,
     parse_seeds,
     run_tasks,
@@ -632,8 +632,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.advance(run_line(k, len(tasks), record))
         records = [r for r in done if r is not None]
         write_json(args.json, args, records, info, complete=k == len(tasks))
-    text = (report(records, options_of(args)) + calibration_line(info)
-            + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n")
+    text = report(records, options_of(args)) + footer(info, t0)
     write_report(args.json, text)
     bad = any(r["status"] != "ok" or r["missed"] for r in records)
     return 1 if bad else 0

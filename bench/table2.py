@@ -42,10 +42,10 @@ from pathlib import Path
 
 from benchlib import (
     Progress,
-    calibration_line,
     check_cluster_arguments,
     cluster_arguments,
     fmt,
+    footer,
     machine,
     parse_seeds,
     run_tasks,
@@ -391,8 +391,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.advance(progress_line(k, len(tasks), record))
         records = [r for r in done if r is not None]
         write_json(args.json, args, records, info, complete=k == len(tasks))
-    text = (report(records, args) + calibration_line(info)
-            + f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n")
+    text = report(records, args) + footer(info, t0)
     write_report(args.json, text)
     bad = sum(r["status"] == "verify_failed" for r in records)
     return 1 if bad else 0

@@ -15,6 +15,6 @@ def test_the_machine_record_carries_its_speed_by_two_fixed_workloads() -> None:
     speed = info["calibration"]
     assert set(speed) == {"python_loop_s", "highs_knapsack_s"}
     assert all(0 < s < 60 for s in speed.values())
-    line = benchlib.calibration_line(info)
+    line = benchlib.footer(info, 0.0)
     for seconds in speed.values():
         assert f"{seconds:.3f} s" in line

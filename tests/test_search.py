@@ -305,6 +305,33 @@ class SlowFirstNode(StepSearch):
         return super()._compute(key, exact, cutoff)
 
 
+def rounds_scene():
+    s = random_scene(3)  # m_o = 2, rule 2 with a user rule: its first node gives arm 1 both
+    return s, specification(s, [0, 1, 2])
+
+
+def test_a_node_left_undecided_does_not_hide_a_plan_of_the_next_ones() -> None:
+    s, spec = rounds_scene()
+    T = first_feasible(s, spec).horizon
+    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
+    assert search.feasible() and search._witness is not None
+    assert search.slices and set(search.slices) == {2.0}  # a sixteenth of 32 s, one round
+    assert not search.stats.timed_out  # the plan decides the horizon
+
+
+def test_the_rounds_give_what_ran_out_of_time_four_times_as_long_until_it_is_decided() -> None:
+    s, spec = rounds_scene()
+    T = first_feasible(s, spec).horizon - 1  # no plan: every node must be proven infeasible
+    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
+    search.needs = 8.0
+    assert not search.feasible() and not search.stats.timed_out
+    assert sorted(set(search.slices)) == [2.0, 8.0]
+    assert search._slice == np.inf  # the optimization after the pass has no slices
+
+
+# --- a node whose joint program runs out ---------------------------------------------------------
+
+
 class JointRunsOut(StepSearch):
     """Every joint node program runs out of time before it finds or proves anything."""
 
@@ -330,27 +357,3 @@ def test_a_composed_plan_does_not_close_its_node_when_the_joint_program_ran_out(
     assert res.status is Status.FEASIBLE and res.gap > 1e-4
     assert res.bound <= mono.cost * (1 + 1e-6) <= res.cost * (1 + 1e-6)
     assert replayed_trace_satisfies(s, spec, res)
-
-
-def rounds_scene():
-    s = random_scene(3)  # m_o = 2, rule 2 with a user rule: its first node gives arm 1 both
-    return s, specification(s, [0, 1, 2])
-
-
-def test_a_node_left_undecided_does_not_hide_a_plan_of_the_next_ones() -> None:
-    s, spec = rounds_scene()
-    T = first_feasible(s, spec).horizon
-    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
-    assert search.feasible() and search._witness is not None
-    assert search.slices and set(search.slices) == {2.0}  # a sixteenth of 32 s, one round
-    assert not search.stats.timed_out  # the plan decides the horizon
-
-
-def test_the_rounds_give_what_ran_out_of_time_four_times_as_long_until_it_is_decided() -> None:
-    s, spec = rounds_scene()
-    T = first_feasible(s, spec).horizon - 1  # no plan: every node must be proven infeasible
-    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
-    search.needs = 8.0
-    assert not search.feasible() and not search.stats.timed_out
-    assert sorted(set(search.slices)) == [2.0, 8.0]
-    assert search._slice == np.inf  # the optimization after the pass has no slices
