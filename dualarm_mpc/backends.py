@@ -98,9 +98,11 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
         # Branch on pseudocosts from the start, without strong branching to make them reliable:
         # the trees are small and their LP bounds weak (docs/search.md, "Solver settings").
         h.setOptionValue("mip_pscost_minreliable", 0)
-        # Light presolve: the full one's extra sweeps cost more than they save on programs
-        # this small (docs/search.md, "Solver settings").
+        # Light presolve, and cuts at the root only: on programs this small the full presolve's
+        # sweeps and the cuts separated at every node cost more than they save (docs/search.md,
+        # "Solver settings").
         h.setOptionValue("presolve_mode", 2)
+        h.setOptionValue("mip_allow_cut_separation_at_nodes", False)
     if np.isfinite(options.cutoff):
         h.setOptionValue("objective_bound", float(options.cutoff))
     if start is not None and start.complete:
