@@ -76,8 +76,9 @@ class SolveOptions:
     backend: str = "highs"  # a key of BACKENDS
     # HiGHS's sub-MIP and rounding heuristics (RINS, RENS, feasibility jump, root reduced cost).
     # The search's programs are small enough that their trees close in a few nodes, and these
-    # heuristics took half of their time (docs/search.md, "Solver settings"); other backends
-    # ignore the field.
+    # heuristics took half of their time (docs/search.md, "Solver settings"). False also gives
+    # them the settings for small trees: no restart, pseudocost branching, light presolve, cuts
+    # at the root only. Other backends ignore the field.
     heuristics: bool = True
     # Only solutions below this objective are wanted: a program with none ends "infeasible",
     # which here means "nothing below the cutoff". HiGHS prunes by it (objective_bound); other
