@@ -242,7 +242,7 @@ class StepSearch:
         its first solution (a feasibility probe). With a ``cutoff``, "infeasible" means no plan
         cheaper than it (``SolveOptions.cutoff``)."""
         remaining = max(min(self._deadline - time.perf_counter(), self._slice), 1e-3)
-        options = replace(self.options, time_limit_s=remaining, heuristics=False, cutoff=cutoff)
+        options = replace(self.options, time_limit_s=remaining, small_trees=True, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
         res = self._program.solve(spec, options, _start(start), allowed=allowed, hands=hands,

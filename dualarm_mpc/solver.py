@@ -74,12 +74,12 @@ class SolveOptions:
     mip_rel_gap: float = 1e-4
     threads: int = 1
     backend: str = "highs"  # a key of BACKENDS
-    # HiGHS's sub-MIP and rounding heuristics (RINS, RENS, feasibility jump, root reduced cost).
-    # The search's programs are small enough that their trees close in a few nodes, and these
-    # heuristics took half of their time (docs/search.md, "Solver settings"). False also gives
-    # them the settings for small trees: no restart, pseudocost branching, light presolve, cuts
-    # at the root only. Other backends ignore the field.
-    heuristics: bool = True
+    # HiGHS set for the search's programs, whose trees close in a few nodes: no sub-MIP or
+    # rounding heuristics (RINS, RENS, feasibility jump, root reduced cost: half of their time),
+    # no restart, pseudocost branching, light presolve, cuts at the root only (docs/search.md,
+    # "Solver settings"). The monolithic reference keeps HiGHS's defaults; other backends
+    # ignore the field.
+    small_trees: bool = False
     # Only solutions below this objective are wanted: a program with none ends "infeasible",
     # which here means "nothing below the cutoff". HiGHS prunes by it (objective_bound); other
     # backends ignore it and return their optimum, which is then at or above it.

@@ -59,7 +59,7 @@ def test_the_bound_never_rules_out_a_horizon_the_one_hand_program_allows(rule, s
     local = state.select(objects)
     no_throw = frozenset(objects.index(j) for j in spec.released_only_in_goal())
     assert no_throw == (frozenset(range(4)) if rule == 1 else frozenset())
-    options = SolveOptions(time_limit_s=60.0, mip_rel_gap=1.0, heuristics=False)
+    options = SolveOptions(time_limit_s=60.0, mip_rel_gap=1.0, small_trees=True)
     shares = [(j,) for j in objects] + list(itertools.combinations(objects, 2))[:3]
     checked = 0
     for i in range(N_HANDS):
@@ -123,7 +123,7 @@ def test_splitting_a_share_by_order_keeps_its_optimum_and_every_plan(seed) -> No
     state = _random_state(scenario, objects, np.random.default_rng(seed + 10))
     spec = specification(scenario, objects)
     model = Model.from_scenario(scenario, objects)
-    options = SolveOptions(time_limit_s=120.0, heuristics=False)
+    options = SolveOptions(time_limit_s=120.0, small_trees=True)
     for i, share in ((0, (0, 1)), (1, (2, 3))):
         found = orders(model, state.select(objects), i, share, frozenset(objects),
                        scenario.solver.max_horizon)
@@ -164,7 +164,7 @@ def test_under_no_throw_both_hands_deliver_an_object_no_sooner_than_one_hand_cou
     state = _random_state(scenario, objects, np.random.default_rng(seed + 20))
     spec = specification(scenario, objects)
     model = Model.from_scenario(scenario, objects)
-    options = SolveOptions(time_limit_s=60.0, mip_rel_gap=1.0, heuristics=False)
+    options = SolveOptions(time_limit_s=60.0, mip_rel_gap=1.0, small_trees=True)
     for n, j in enumerate(objects):
         bound = min(route_steps(model, state.select(objects), i, (n,), frozenset(range(3)),
                                 scenario.solver.max_horizon) for i in range(N_HANDS))
