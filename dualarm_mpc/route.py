@@ -87,11 +87,25 @@ def _clip(poly: Polygon, a0: float, a1: float, b: float) -> Polygon:
 
 def _slab(poly: Polygon, lo: float, hi: float, slope: float = 0.0, speed: bool = False) -> Polygon:
     """``poly`` ∩ {lo ≤ p + slope·v ≤ hi}, or ∩ {lo ≤ v ≤ hi} with ``speed``."""
+    if not poly:
+        return poly
     a0, a1 = (0.0, 1.0) if speed else (1.0, slope)
-    return _clip(_clip(poly, a0, a1, hi), -a0, -a1, -lo)
+    z = [a0 * x + a1 * v for x, v in poly]
+    low, high = min(z), max(z)
+    if low > hi + _EPS or high < lo - _EPS:
+        return []
+    if high > hi + _EPS:
+        poly = _clip(poly, a0, a1, hi)
+    if low < lo - _EPS:
+        poly = _clip(poly, -a0, -a1, -lo)
+    return poly
 
 
 def _union(polys: list[Polygon]) -> Polygon:
+    """The convex hull of the union (a polygon alone is its own)."""
+    polys = [poly for poly in polys if poly]
+    if len(polys) <= 1:
+        return polys[0] if polys else []
     return _hull([p for poly in polys for p in poly])
 
 
@@ -104,36 +118,83 @@ def _step(axis: Axis, poly: Polygon) -> Polygon:
     if not poly:
         return poly
     dt, v_max, u_max, lo, hi = axis
-    du = dt * u_max
-    poly = _hull([(x + dt * v, v + d) for x, v in poly for d in (du, -du)])
+    poly = _sheared_sum([(x + dt * v, v) for x, v in poly], dt * u_max)
     return _slab(_slab(poly, -v_max, v_max, speed=True), lo, hi)
 
 
-class _Propagation:
-    """One axis along one route, propagated step by step only as far as it has been asked:
-    the horizons of a sequential step ask the same questions, each a little further."""
+def _sheared_sum(poly: Polygon, du: float) -> Polygon:
+    """``poly`` ⊕ {0} × [−du, du], in O(n): the position update x + Δt·v is a shear, so the
+    polygon stays convex and counter-clockwise, and adding a vertical segment moves its lower
+    chain (from the leftmost to the rightmost vertex, the lowest of each) down by du and its
+    upper chain (back, the highest of each) up."""
+    n = len(poly)
+    left_low = min(range(n), key=lambda k: poly[k])
+    right_high = max(range(n), key=lambda k: poly[k])
+    right_low = max(range(n), key=lambda k: (poly[k][0], -poly[k][1]))
+    left_high = min(range(n), key=lambda k: (poly[k][0], -poly[k][1]))
+    out = []
+    for first, last, d in ((left_low, right_low, -du), (right_high, left_high, du)):
+        k = first
+        while True:
+            out.append((poly[k][0], poly[k][1] + d))
+            if k == last:
+                break
+            k = (k + 1) % n
+    return out
 
-    def __init__(self, axis: Axis, start: tuple[float, float],
-                 visits: tuple[tuple[Slab, ...], ...]) -> None:
-        self.axis, self.visits, self.k = axis, visits, 0
-        self.stages: list[Polygon] = [[start]] + [[] for _ in visits]
-        self.times: list[int | None] = [None] * (len(visits) + 1)  # None: not within k
+
+class _Stage:
+    """The (position, velocity) set of one axis after a prefix of a route's visits, step by step
+    (``sets[k]``) as far as it has been asked, and the first step at which it is not empty.
+    Routes that begin alike share their stages (an order's pairs and triples start with its
+    single objects), and the horizons of a sequential step ask the same, a little further."""
+
+    def __init__(self, axis: Axis, start: tuple[float, float], parent: _Stage | None,
+                 slabs: tuple[Slab, ...]) -> None:
+        self.axis, self.parent, self.slabs = axis, parent, slabs
+        self.sets: list[Polygon] = [[start] if parent is None else []]
+        self.first: int | None = 0 if parent is None else None
+
+    def at(self, k: int) -> Polygon:
+        while len(self.sets) <= k:
+            j = len(self.sets)
+            reached = _step(self.axis, self.sets[-1])
+            if self.parent is not None:  # or makes the visit at step j
+                reached = _union([reached] + [_slab(self.parent.at(j), *s) for s in self.slabs])
+            self.sets.append(reached)
+            if reached and self.first is None:
+                self.first = j
+        return self.sets[k]
+
+
+class _Propagation:
+    """One axis along one route: its stages, and the first step at which it is at rest."""
+
+    def __init__(self, stages: list[_Stage]) -> None:
+        self.stages, self.k, self.rest = stages, 0, None
 
     def advance(self, cap: int) -> None:
-        while self.k < cap and self.times[-1] is None:
+        while self.k < cap and self.rest is None:
             self.k += 1
-            self.stages = [_step(self.axis, p) for p in self.stages]
-            for m, slabs in enumerate(self.visits, start=1):
-                self.stages[m] = _union([self.stages[m]]
-                                        + [_slab(self.stages[m - 1], *s) for s in slabs])
-                if self.stages[m] and self.times[m - 1] is None:
-                    self.times[m - 1] = self.k
-            if _slab(self.stages[-1], -_EPS, _EPS, speed=True):
-                self.times[-1] = self.k
+            if _slab(self.stages[-1].at(self.k), -_EPS, _EPS, speed=True):
+                self.rest = self.k
 
 
+_STAGES: dict[tuple, _Stage] = {}
 _PROPAGATIONS: dict[tuple, _Propagation] = {}
 _PROPAGATIONS_LOCK = threading.Lock()  # the search's workers ask too
+
+
+def _stages(axis: Axis, start: tuple[float, float],
+            visits: tuple[tuple[Slab, ...], ...]) -> list[_Stage]:
+    stages: list[_Stage] = []
+    for m in range(len(visits) + 1):
+        key = (axis, start, visits[:m])
+        if key not in _STAGES:
+            _STAGES[key] = _Stage(axis, start, stages[-1] if stages else None,
+                                  visits[m - 1] if m else ())
+        stages.append(_STAGES[key])
+    return stages
 
 
 def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
@@ -146,11 +207,13 @@ def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab,
     with _PROPAGATIONS_LOCK:
         run = _PROPAGATIONS.get(key)
         if run is None:
-            if len(_PROPAGATIONS) >= 8192:
+            if len(_STAGES) >= 4096:
+                _STAGES.clear()
                 _PROPAGATIONS.clear()
-            run = _PROPAGATIONS[key] = _Propagation(axis, start, visits)
+            run = _PROPAGATIONS[key] = _Propagation(_stages(axis, start, visits))
         run.advance(cap)
-        return tuple(cap + 1 if t is None or t > cap else t for t in run.times)
+        times = [stage.first for stage in run.stages[1:]] + [run.rest]
+        return tuple(cap + 1 if t is None or t > cap else t for t in times)
 
 
 def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
