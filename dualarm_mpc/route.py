@@ -207,7 +207,7 @@ def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab,
     with _PROPAGATIONS_LOCK:
         run = _PROPAGATIONS.get(key)
         if run is None:
-            if len(_STAGES) >= 4096:
+            if len(_STAGES) >= 2048:  # a few MB; the stages of earlier steps are of no use
                 _STAGES.clear()
                 _PROPAGATIONS.clear()
             run = _PROPAGATIONS[key] = _Propagation(_stages(axis, start, visits))
