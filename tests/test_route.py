@@ -14,9 +14,10 @@ import itertools
 import numpy as np
 import pytest
 
+from dualarm_mpc import route
 from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.mld import N_HANDS, Model, State, in_goal
-from dualarm_mpc.route import axis_steps, horizon_bound, orders, route_steps
+from dualarm_mpc.route import axis_steps, axis_times, horizon_bound, orders, route_steps
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.search import restricted
 from dualarm_mpc.solver import SolveOptions, Status
@@ -32,6 +33,40 @@ def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:
     assert axis_steps(axis, (0.0, 0.0), (visit,), 40) == 5
     # Out of the hand range: never.
     assert axis_steps(axis, (0.0, 0.0), (((1.5, 1.6, 0.0),),), 40) == 41
+
+
+def test_one_step_of_a_polygon_is_the_hull_of_its_moved_vertices() -> None:
+    # The one-pass Minkowski step against the definition: every vertex sheared (x + Δt·v)
+    # and moved by ±Δt·u_max, then the convex hull (as a set: the same vertices, any start).
+    rng = np.random.default_rng(0)
+    axis = (0.2, 0.2, 0.5, -1.0, 1.0)
+    dt, v_max, u_max, lo, hi = axis
+    for _ in range(200):
+        poly = route._hull([tuple(p) for p in rng.uniform(-0.3, 0.3, (rng.integers(1, 8), 2))])
+        du = dt * u_max
+        expected = route._hull([(x + dt * v, v + d) for x, v in poly for d in (du, -du)])
+        expected = route._slab(route._slab(expected, -v_max, v_max, speed=True), lo, hi)
+        got = route._step(axis, poly)
+        assert {tuple(p) for p in np.round(route._hull(got), 12)} \
+            == {tuple(p) for p in np.round(route._hull(expected), 12)}
+
+
+def test_routes_that_share_their_first_visits_answer_as_if_alone() -> None:
+    # Stages are shared between routes with the same first visits and resumed from one cap to
+    # the next: the answers must not depend on what was asked before.
+    axis = (0.2, 0.2, 0.5, -1.0, 1.0)
+    a, b, c = (((0.3, 0.35, 0.0),),), (((-0.5, -0.45, 0.0),),), (((0.8, 0.85, 0.0),),)
+    routes = [a + b, a + c, a + b + c, a, b + a]
+    asked = [(r, cap) for r in routes for cap in (5, 40)]
+    alone = []
+    for r, cap in asked:
+        route._STAGES.clear()
+        route._PROPAGATIONS.clear()
+        alone.append(axis_times(axis, (0.0, 0.0), r, cap))
+    route._STAGES.clear()
+    route._PROPAGATIONS.clear()
+    assert [axis_times(axis, (0.0, 0.0), r, cap) for r, cap in asked] == alone
+    assert [axis_times(axis, (0.0, 0.0), r, cap) for r, cap in reversed(asked)] == alone[::-1]
 
 
 def _random_state(scenario, objects, rng) -> State:
