@@ -145,15 +145,17 @@ def _sheared_sum(poly: Polygon, du: float) -> Polygon:
 
 class _Stage:
     """The (position, velocity) set of one axis after a prefix of a route's visits, step by step
-    (``sets[k]``) as far as it has been asked, and the first step at which it is not empty.
-    Routes that begin alike share their stages (an order's pairs and triples start with its
-    single objects), and the horizons of a sequential step ask the same, a little further."""
+    (``sets[k]``) as far as it has been asked; the first step at which it is not empty, and
+    the first at which it holds a state at rest. Routes that begin alike share their stages
+    (an order's pairs and triples start with its single objects), and the horizons of a
+    sequential step ask the same, a little further."""
 
     def __init__(self, axis: Axis, start: tuple[float, float], parent: _Stage | None,
                  slabs: tuple[Slab, ...]) -> None:
         self.axis, self.parent, self.slabs = axis, parent, slabs
         self.sets: list[Polygon] = [[start] if parent is None else []]
         self.first: int | None = 0 if parent is None else None
+        self.rest: int | None = None
 
     def at(self, k: int) -> Polygon:
         while len(self.sets) <= k:
@@ -164,25 +166,13 @@ class _Stage:
             self.sets.append(reached)
             if reached and self.first is None:
                 self.first = j
+            if self.rest is None and _slab(reached, -_EPS, _EPS, speed=True):
+                self.rest = j
         return self.sets[k]
 
 
-class _Propagation:
-    """One axis along one route: its stages, and the first step at which it is at rest."""
-
-    def __init__(self, stages: list[_Stage]) -> None:
-        self.stages, self.k, self.rest = stages, 0, None
-
-    def advance(self, cap: int) -> None:
-        while self.k < cap and self.rest is None:
-            self.k += 1
-            if _slab(self.stages[-1].at(self.k), -_EPS, _EPS, speed=True):
-                self.rest = self.k
-
-
 _STAGES: dict[tuple, _Stage] = {}
-_PROPAGATIONS: dict[tuple, _Propagation] = {}
-_PROPAGATIONS_LOCK = threading.Lock()  # the search's workers ask too
+_STAGES_LOCK = threading.Lock()  # the search's workers ask too
 
 
 def _stages(axis: Axis, start: tuple[float, float],
@@ -203,16 +193,14 @@ def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab,
     (position, velocity) makes ``visits`` in order, each at a step ≥ 1 (several may share
     one), and last the fewest steps T ≤ ``cap`` after which it is also at rest; ``cap + 1``
     for what it cannot reach. A visit is a union of slabs. Pure, so kept and resumed."""
-    key = (axis, start, visits)
-    with _PROPAGATIONS_LOCK:
-        run = _PROPAGATIONS.get(key)
-        if run is None:
-            if len(_STAGES) >= 2048:  # a few MB; the stages of earlier steps are of no use
-                _STAGES.clear()
-                _PROPAGATIONS.clear()
-            run = _PROPAGATIONS[key] = _Propagation(_stages(axis, start, visits))
-        run.advance(cap)
-        times = [stage.first for stage in run.stages[1:]] + [run.rest]
+    with _STAGES_LOCK:
+        if len(_STAGES) >= 2048:  # a few MB; the stages of earlier steps are of no use
+            _STAGES.clear()
+        stages = _stages(axis, start, visits)
+        last = stages[-1]
+        while last.rest is None and len(last.sets) <= cap:
+            last.at(len(last.sets))
+        times = [stage.first for stage in stages[1:]] + [last.rest]
         return tuple(cap + 1 if t is None or t > cap else t for t in times)
 
 

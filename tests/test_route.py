@@ -61,10 +61,8 @@ def test_routes_that_share_their_first_visits_answer_as_if_alone() -> None:
     alone = []
     for r, cap in asked:
         route._STAGES.clear()
-        route._PROPAGATIONS.clear()
         alone.append(axis_times(axis, (0.0, 0.0), r, cap))
     route._STAGES.clear()
-    route._PROPAGATIONS.clear()
     assert [axis_times(axis, (0.0, 0.0), r, cap) for r, cap in asked] == alone
     assert [axis_times(axis, (0.0, 0.0), r, cap) for r, cap in reversed(asked)] == alone[::-1]
 
