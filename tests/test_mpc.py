@@ -62,6 +62,20 @@ def test_an_object_resting_in_its_goal_is_delivered_and_the_robot_holds_still() 
     assert s.plan.t0 == 3.0 and not s.plan.trajectory.grasp.any()
 
 
+def test_an_object_creeping_across_its_goals_edge_is_not_delivered() -> None:
+    """Inside its goal and slower than ``REST_SPEED``, but where it stops (v·Δt on) is outside:
+    the replan plans for it instead of saying done."""
+    sc = scenario()
+    core = Replanner(sc)
+    top = GOALS["red"][3]
+    creeping = at_rest(sc, [[0.4, top - 0.002]])
+    creeping = dataclasses.replace(creeping, object_vel=np.array([[0.0, 0.4 * REST_SPEED]]))
+    s, r = core.step(3.0, core.initial_state(), creeping, sc.task.goals)
+    core.close(s)
+    assert r.status in ("optimal", "feasible") and r.delivered == 0
+    assert s.delivered_time == (None,) and s.step_objects == (0,)
+
+
 def test_the_goals_come_from_the_caller() -> None:
     """A goal moved onto the object: it is delivered where it rests, with no solve."""
     sc = scenario()
