@@ -68,19 +68,15 @@ def highs_model(f: StandardForm):
     import highspy
 
     h = _quiet_highs()()
-    lp = highspy.HighsLp()
-    n = len(f.c)
-    lp.num_col_, lp.num_row_ = n, f.A.shape[0]
-    lp.col_cost_, lp.offset_ = f.c, f.c0
-    lp.col_lower_, lp.col_upper_ = f.col_lb, f.col_ub
-    lp.row_lower_, lp.row_upper_ = f.row_lb, f.row_ub
     A = f.A.tocsc()
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kColwise
-    lp.a_matrix_.start_, lp.a_matrix_.index_, lp.a_matrix_.value_ = A.indptr, A.indices, A.data
-    lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = n, f.A.shape[0]
-    lp.integrality_ = [highspy.HighsVarType.kInteger if b else highspy.HighsVarType.kContinuous
-                       for b in f.integer]
-    h.passModel(lp)
+    # The array overload of passModel takes numpy buffers as they are; filling a HighsLp's
+    # fields converts them element by element (3.7 → 0.5 ms for a joint node program).
+    status = h.passModel(len(f.c), A.shape[0], A.nnz, int(highspy.MatrixFormat.kColwise),
+                         int(highspy.ObjSense.kMinimize), float(f.c0), f.c, f.col_lb, f.col_ub,
+                         f.row_lb, f.row_ub, A.indptr.astype(np.int32),
+                         A.indices.astype(np.int32), A.data, f.integer.astype(np.int32))
+    if status == highspy.HighsStatus.kError:
+        raise ValueError("HiGHS refused the model (passModel)")
     return h
 
 
