@@ -21,6 +21,7 @@ send the shoulder around a full turn.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -47,35 +48,45 @@ def scara_ik(
     p: Sequence[float], base: Sequence[float], lengths: Sequence[float], elbow_sign: int
 ) -> np.ndarray:
     """Joint angles (q1, q2) placing the hand at ``p``; q1 in (−π, π], sign(q2) = elbow_sign."""
+    # Scalar math, not numpy: the controller runs this at every 2 ms plant step.
     l1, l2 = lengths
     dx, dy = p[0] - base[0], p[1] - base[1]
     c2 = (dx * dx + dy * dy - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    q2 = elbow_sign * np.arccos(np.clip(c2, -1.0, 1.0))
-    q1 = np.arctan2(dy, dx) - np.arctan2(l2 * np.sin(q2), l1 + l2 * np.cos(q2))
-    q1 = (q1 + np.pi) % (2.0 * np.pi) - np.pi
+    q2 = elbow_sign * math.acos(min(1.0, max(-1.0, c2)))
+    q1 = math.atan2(dy, dx) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
+    q1 = (q1 + math.pi) % (2.0 * math.pi) - math.pi
     return np.array([q1, q2])
 
 
 def scara_jacobian(q: Sequence[float], lengths: Sequence[float]) -> np.ndarray:
     """∂p/∂(q1, q2), 2×2."""
+    return np.array(_jacobian(q, lengths)).reshape(2, 2)
+
+
+def _jacobian(q: Sequence[float], lengths: Sequence[float]) -> tuple[float, ...]:
+    """The Jacobian's entries, row-major, as floats."""
     l1, l2 = lengths
-    s1, c1 = np.sin(q[0]), np.cos(q[0])
-    s12, c12 = np.sin(q[0] + q[1]), np.cos(q[0] + q[1])
-    return np.array([[-l1 * s1 - l2 * s12, -l2 * s12], [l1 * c1 + l2 * c12, l2 * c12]])
+    s1, c1 = math.sin(q[0]), math.cos(q[0])
+    s12, c12 = math.sin(q[0] + q[1]), math.cos(q[0] + q[1])
+    return -l1 * s1 - l2 * s12, -l2 * s12, l1 * c1 + l2 * c12, l2 * c12
 
 
 def scara_joint_velocity(
     q: Sequence[float], v: Sequence[float], lengths: Sequence[float]
 ) -> np.ndarray:
-    """(q1', q2') giving hand velocity ``v`` at ``q``: damped least squares, clipped."""
-    J = scara_jacobian(q, lengths)
-    qd = J.T @ np.linalg.solve(J @ J.T + _DAMPING**2 * np.eye(2), np.asarray(v, float))
-    return np.clip(qd, -_MAX_JOINT_SPEED, _MAX_JOINT_SPEED)
+    """(q1', q2') giving hand velocity ``v`` at ``q``: damped least squares
+    Jᵀ (J Jᵀ + λ² I)⁻¹ v, clipped; the 2×2 inverse in closed form (every plant step)."""
+    a, b, c, d = _jacobian(q, lengths)
+    m00, m01, m11 = a * a + b * b + _DAMPING**2, a * c + b * d, c * c + d * d + _DAMPING**2
+    det = m00 * m11 - m01 * m01
+    y0, y1 = (m11 * v[0] - m01 * v[1]) / det, (m00 * v[1] - m01 * v[0]) / det
+    return np.array([min(_MAX_JOINT_SPEED, max(-_MAX_JOINT_SPEED, a * y0 + c * y1)),
+                     min(_MAX_JOINT_SPEED, max(-_MAX_JOINT_SPEED, b * y0 + d * y1))])
 
 
 def unwrap_to(angle: float, reference: float) -> float:
     """``angle`` + 2πn closest to ``reference``."""
-    return angle + 2.0 * np.pi * np.round((reference - angle) / (2.0 * np.pi))
+    return angle + 2.0 * math.pi * round((reference - angle) / (2.0 * math.pi))
 
 
 class Controller(LeafSystem):

@@ -37,6 +37,11 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlan
 from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import BasicVector, LeafSystem
 
+# m/s: an unheld object slower than this gets no drag force. The force would be under m·1e-4/τ,
+# far below the Coulomb friction μ·m·g that holds it anyway; and since objects mostly rest,
+# building a force for each of them every 2 ms step was the closed loop's costliest Python.
+DRAG_SPEED = 1e-4
+
 
 class Gripper(LeafSystem):
     """Diagram-native grasping by spring-damper forces between hands and objects.
@@ -185,6 +190,8 @@ class Gripper(LeafSystem):
             velocities = self._body_velocities.Eval(context)
             for j in np.flatnonzero(~held):
                 v = velocities[self._objects[j]].translational()
+                if abs(v[0]) < DRAG_SPEED and abs(v[1]) < DRAG_SPEED:
+                    continue
                 f = np.array([-self._drag[j] * v[0], -self._drag[j] * v[1], 0.0])
                 forces.append(self._force(self._object_body_index[j], [0.0, 0.0, 0.0], f))
         if attached.any():
