@@ -23,7 +23,7 @@ from dualarm_mpc.systems.controller import (
     scara_jacobian,
     scara_joint_velocity,
 )
-from dualarm_mpc.systems.gripper import Gripper
+from dualarm_mpc.systems.gripper import REST_NOISE, Gripper
 from dualarm_mpc.systems.interpolator import (
     TRAVEL_HEIGHT,
     Interpolator,
@@ -425,10 +425,10 @@ def test_pick_drag_and_release_at_rest():
     np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
 
 
-def _throw(scenario: Scenario, v: float):
+def _throw(scenario: Scenario, v: float, until: float = 8.0):
     """A plan in the Euler model (p(k+1) = p(k) + v(k)): the hand drags the object at v during
     step 2 and releases it at step 3, where the plan's own hand velocity is already 0; the object
-    leaves at v (the model's v_obj(3) = v_hand(2)). Returns (state at release, state at t=8)."""
+    leaves at v (the model's v_obj(3) = v_hand(2)). Returns (state at release, at ``until``)."""
     nodes = [
         ([0.1, 0.0], [0, 0.1]),
         ([0.1, 0.1], [0, 0.15]),  # grasp begins
@@ -442,7 +442,7 @@ def _throw(scenario: Scenario, v: float):
     assert at_release["grasp"][0, 0] == 1
     assert np.linalg.norm(at_release["object_vel"][0]) == pytest.approx(v, rel=0.02)
     assert rig.advance(3.01)["grasp"][0, 0] == 0
-    return at_release, rig.advance(8.0)
+    return at_release, rig.advance(until)
 
 
 @pytest.mark.slow  # seconds of plant simulation
@@ -465,6 +465,17 @@ def test_throw_on_the_viscous_table_slides_v_dt_at_any_speed(v):
     assert slide[1] == pytest.approx(v * 1.0, rel=0.01)
     assert abs(slide[0]) < 2e-3
     assert np.linalg.norm(x["object_vel"][0]) < 0.01
+
+
+@pytest.mark.slow  # seconds of plant simulation
+def test_a_thrown_object_on_the_viscous_table_comes_to_rest_for_good():
+    """The drag alone would slow it for ever (no Coulomb friction): below ``STOP_SPEED`` the
+    gripper stops it, so 12 s after the throw it stands still, the slide still v·Δt."""
+    v = 0.4
+    at_release, x = _throw(one_object_scenario(0.0, slide_time_constant=1.0), v, until=15.0)
+    assert np.linalg.norm(x["object_vel"][0]) < REST_NOISE
+    slide = x["object_pos"][0] - at_release["object_pos"][0]
+    assert slide[1] == pytest.approx(v * 1.0, rel=0.01)
 
 
 def test_gripper_does_not_grab_an_object_out_of_reach():

@@ -17,6 +17,8 @@ drag ``F = −m·v/τ`` in the plane, so from speed v it slides ``v·τ`` — wi
 one-step slide of the planner's object model at *every* speed (docs/model.md, the one-step slide).
 Coulomb friction alone gives v²/(2μg), which matches v·Δt at one speed only: a throw at 0.35 m/s
 with μ tuned for 0.5 m/s fell 10–15 cm short of the plan, beyond the hands' reach (measured).
+Below ``STOP_SPEED`` (0.1 mm/s) the object is stopped within one plant step, so that it comes to
+rest (at most 0.1 mm·τ/s short of the slide's limit).
 
 Pair (i, j) attaches at an update when ``grasp_command[i·N + j] > 0.5`` and hand i is inside the
 grasp box of object j: ``|Δp|∞ ≤ grasp_half_size_j + tolerance`` in the plane and within
@@ -37,10 +39,14 @@ from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlan
 from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-# m/s: an unheld object slower than this gets no drag force. The force would be under m·1e-4/τ,
-# far below the Coulomb friction μ·m·g that holds it anyway; and since objects mostly rest,
-# building a force for each of them every 2 ms step was the closed loop's costliest Python.
-DRAG_SPEED = 1e-4
+# m/s: an unheld object slower than this is stopped within one plant step (F = −m·v/h) instead
+# of dragged: the drag alone decays its speed but never ends it, and the scenarios' tables have
+# no Coulomb friction (μ = 0) to hold it, so without the stop a delivered object crept on.
+STOP_SPEED = 1e-4
+# m/s: an object at rest on the table moves at ~1e-15 m/s (SAP's round-off); it gets no force.
+# Objects mostly rest, and building a force for each of them every 2 ms step was the closed
+# loop's costliest Python.
+REST_NOISE = 1e-9
 
 
 class Gripper(LeafSystem):
@@ -103,6 +109,7 @@ class Gripper(LeafSystem):
         self._c = 2.0 * damping_ratio * np.sqrt(stiffness * masses)
         self._drag = np.zeros(len(masses)) if slide_time_constant is None else (
             masses / slide_time_constant)
+        self._stop = masses / update_period
         yaw_inertia = np.array(
             [
                 b.default_spatial_inertia().CalcRotationalInertia().get_moments()[2]
@@ -190,9 +197,11 @@ class Gripper(LeafSystem):
             velocities = self._body_velocities.Eval(context)
             for j in np.flatnonzero(~held):
                 v = velocities[self._objects[j]].translational()
-                if abs(v[0]) < DRAG_SPEED and abs(v[1]) < DRAG_SPEED:
+                speed = max(abs(v[0]), abs(v[1]))
+                if speed < REST_NOISE:
                     continue
-                f = np.array([-self._drag[j] * v[0], -self._drag[j] * v[1], 0.0])
+                c = self._stop[j] if speed < STOP_SPEED else self._drag[j]
+                f = np.array([-c * v[0], -c * v[1], 0.0])
                 forces.append(self._force(self._object_body_index[j], [0.0, 0.0, 0.0], f))
         if attached.any():
             poses = self._body_poses.Eval(context)
