@@ -358,14 +358,19 @@ def _lost(sc: Scenario, state: State) -> np.ndarray:
     return reach.first_goal > sc.solver.max_horizon
 
 
+def _stops_in_goal(sc: Scenario, pos: np.ndarray, vel) -> np.ndarray:
+    """(N,) whether each unheld object at ``pos`` moving at ``vel`` stops in its goal: the
+    one-step slide carries it v·Δt on (docs/model.md; on the robot the table's drag)."""
+    stop = pos + sc.robot.dt * np.asarray(vel, float)
+    return np.array([in_goal(stop[j], sc.task.goals[o.goal])
+                     for j, o in enumerate(sc.task.objects)])
+
+
 def _arriving(sc: Scenario, state: State) -> np.ndarray:
-    """Unheld objects whose one-step slide ends in their goals (docs/model.md, "The one-step
-    slide"; on the robot the table's drag reproduces it)."""
-    landing = state.object_pos + sc.robot.dt * state.object_vel
-    inside = np.array([in_goal(landing[j], sc.task.goals[o.goal])
-                       for j, o in enumerate(sc.task.objects)])
+    """Unheld objects whose one-step slide ends in their goals."""
     moving = np.linalg.norm(state.object_vel, axis=1) > 0
-    return inside & moving & ~state.grasp.any(axis=0)
+    return (_stops_in_goal(sc, state.object_pos, state.object_vel) & moving
+            & ~state.grasp.any(axis=0))
 
 
 def _resting(sc: Scenario, state: State, released: np.ndarray,
@@ -373,12 +378,10 @@ def _resting(sc: Scenario, state: State, released: np.ndarray,
     """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
     counts where ``released`` (N,): the hand has nothing left to do with it and lets go when it
     moves on. Where an object stops counts too (``measured_vel``, before slow speeds are taken
-    as noise; the table's drag slides it v·Δt): one creeping across its goal's edge is not
-    delivered (measured: reported done, it ended 0.4 mm outside at 2.5 mm/s)."""
-    stop = state.object_pos + sc.robot.dt * measured_vel
-    inside = np.array([in_goal(state.object_pos[j], sc.task.goals[o.goal])
-                       & in_goal(stop[j], sc.task.goals[o.goal])
-                       for j, o in enumerate(sc.task.objects)])
+    as noise): one creeping across its goal's edge is not delivered (measured: reported done,
+    it ended 0.4 mm outside at 2.5 mm/s)."""
+    inside = (_stops_in_goal(sc, state.object_pos, 0.0)
+              & _stops_in_goal(sc, state.object_pos, measured_vel))
     return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
 
 
