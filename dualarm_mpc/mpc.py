@@ -199,7 +199,7 @@ class Replanner:
         delivered_time = tuple((t if d is None else d) if r else None
                                for d, r in zip(s.delivered_time, resting, strict=True))
         # A thrown object still sliding into its goal needs nothing more from the robot.
-        done = resting | _arriving(sc, state)
+        done = resting | _arriving(sc, state, np.asarray(measured.object_vel, float))
         n_done = int(np.sum(done))
         lost = _lost(sc, state) & ~done
         remaining = [j for j in range(sc.n_objects) if not done[j] and not lost[j]]
@@ -366,11 +366,16 @@ def _stops_in_goal(sc: Scenario, pos: np.ndarray, vel) -> np.ndarray:
                      for j, o in enumerate(sc.task.objects)])
 
 
-def _arriving(sc: Scenario, state: State) -> np.ndarray:
-    """Unheld objects whose one-step slide ends in their goals."""
-    moving = np.linalg.norm(state.object_vel, axis=1) > 0
-    return (_stops_in_goal(sc, state.object_pos, state.object_vel) & moving
-            & ~state.grasp.any(axis=0))
+def _arriving(sc: Scenario, state: State, measured_vel: np.ndarray) -> np.ndarray:
+    """Unheld moving objects whose one-step slide ends in their goals, at the committed
+    velocity or at the measured one: slower than ``STILL_SPEED`` the committed state has it at
+    rest, and one sliding in from just outside would look undelivered for a replan (measured:
+    "stuck" for one replan when its goal lay out of reach)."""
+    arriving = np.zeros(sc.n_objects, bool)
+    for vel in (state.object_vel, measured_vel):
+        moving = np.linalg.norm(vel, axis=1) > 0
+        arriving |= _stops_in_goal(sc, state.object_pos, vel) & moving
+    return arriving & ~state.grasp.any(axis=0)
 
 
 def _resting(sc: Scenario, state: State, released: np.ndarray,

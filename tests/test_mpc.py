@@ -9,7 +9,7 @@ import threading
 import numpy as np
 
 from dualarm_mpc.mld import REST_SPEED, in_goal
-from dualarm_mpc.mpc import SEARCHING, Measured, MpcState, Replanner
+from dualarm_mpc.mpc import SEARCHING, STILL_SPEED, Measured, MpcState, Replanner
 from dualarm_mpc.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
 from dualarm_mpc.sequential import solve_horizon
 
@@ -74,6 +74,25 @@ def test_an_object_creeping_across_its_goals_edge_is_not_delivered() -> None:
     core.close(s)
     assert r.status in ("optimal", "feasible") and r.delivered == 0
     assert s.delivered_time == (None,) and s.step_objects == (0,)
+
+
+def test_an_object_sliding_slowly_into_a_goal_out_of_reach_is_arriving_not_lost() -> None:
+    """Knocked beyond the hands' reach, just outside its goal and slower than ``STILL_SPEED``
+    (which the committed state takes as rest), it slides into the goal: the replan says done,
+    not stuck."""
+    far = [1.2, 1.5, 0.65, 0.95]
+    sc = scenario(goals={**GOALS, "red": far})
+    core = Replanner(sc)
+    speed = 0.5 * STILL_SPEED
+    sliding = at_rest(sc, [[far[0] - 0.5 * sc.robot.dt * speed, 0.8]])
+    sliding = dataclasses.replace(sliding, object_vel=np.array([[speed, 0.0]]))
+    s, r = core.step(3.0, core.initial_state(), sliding, sc.task.goals)
+    core.close(s)
+    assert r.status == "done", r.note
+    # At rest where it is, it is outside its goal and out of reach: that is stuck.
+    s, r = core.step(3.0, core.initial_state(), at_rest(sc, sliding.object_pos), sc.task.goals)
+    core.close(s)
+    assert r.status == "stuck"
 
 
 def test_the_goals_come_from_the_caller() -> None:
