@@ -52,7 +52,7 @@ def scara_ik(
     l1, l2 = lengths
     dx, dy = p[0] - base[0], p[1] - base[1]
     c2 = (dx * dx + dy * dy - l1 * l1 - l2 * l2) / (2.0 * l1 * l2)
-    q2 = elbow_sign * math.acos(min(1.0, max(-1.0, c2)))
+    q2 = elbow_sign * math.acos(_clamp(c2, 1.0))
     q1 = math.atan2(dy, dx) - math.atan2(l2 * math.sin(q2), l1 + l2 * math.cos(q2))
     q1 = (q1 + math.pi) % (2.0 * math.pi) - math.pi
     return np.array([q1, q2])
@@ -80,8 +80,13 @@ def scara_joint_velocity(
     m00, m01, m11 = a * a + b * b + _DAMPING**2, a * c + b * d, c * c + d * d + _DAMPING**2
     det = m00 * m11 - m01 * m01
     y0, y1 = (m11 * v[0] - m01 * v[1]) / det, (m00 * v[1] - m01 * v[0]) / det
-    return np.array([min(_MAX_JOINT_SPEED, max(-_MAX_JOINT_SPEED, a * y0 + c * y1)),
-                     min(_MAX_JOINT_SPEED, max(-_MAX_JOINT_SPEED, b * y0 + d * y1))])
+    return np.array([_clamp(a * y0 + c * y1, _MAX_JOINT_SPEED),
+                     _clamp(b * y0 + d * y1, _MAX_JOINT_SPEED)])
+
+
+def _clamp(x: float, limit: float) -> float:
+    """``x`` within [−limit, limit] (``np.clip`` for one float, without numpy's overhead)."""
+    return min(limit, max(-limit, x))
 
 
 def unwrap_to(angle: float, reference: float) -> float:
