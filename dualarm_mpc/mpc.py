@@ -194,12 +194,11 @@ class Replanner:
         sc = dataclasses.replace(base, task=dataclasses.replace(base.task, goals=goals))
         state = self._committed_state(t, s, measured)
         # A held object counts once its plan is over, or when that plan keeps it where it is.
-        resting = _resting(sc, state, (t >= s.horizon_end - 1e-9) | _kept(s.plan, t),
-                           np.asarray(measured.object_vel, float))
+        resting = _resting(sc, state, (t >= s.horizon_end - 1e-9) | _kept(s.plan, t), measured)
         delivered_time = tuple((t if d is None else d) if r else None
                                for d, r in zip(s.delivered_time, resting, strict=True))
         # A thrown object still sliding into its goal needs nothing more from the robot.
-        done = resting | _arriving(sc, state, np.asarray(measured.object_vel, float))
+        done = resting | _arriving(sc, state, measured)
         n_done = int(np.sum(done))
         lost = _lost(sc, state) & ~done
         remaining = [j for j in range(sc.n_objects) if not done[j] and not lost[j]]
@@ -299,8 +298,12 @@ class Replanner:
             # hand at the previous step's speed (the throw), so its velocity differs by design.
             close = np.abs(hand_pos - traj.hand_pos[k]).max(axis=1) < SNAP_POSITION
             hand_pos[close], hand_vel[close] = traj.hand_pos[k][close], traj.hand_vel[k][close]
+            # The step's objects only: the plan keeps the others where they were when it was
+            # made (embed_step), which is no prediction for one still sliding (measured: a
+            # thrown object snapped back 1–2 cm short of its goal, out of reach: "stuck").
             close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < SNAP_POSITION)
                      & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < SNAP_VELOCITY))
+            close &= np.isin(np.arange(sc.n_objects), s.step_objects)
             obj_pos[close], obj_vel[close] = traj.object_pos[k][close], traj.object_vel[k][close]
         if t < s.horizon_end - 1e-9:
             grasp = sample_grasp(s.plan, t).reshape(2, sc.n_objects).round().astype(int)
@@ -366,27 +369,31 @@ def _stops_in_goal(sc: Scenario, pos: np.ndarray, vel) -> np.ndarray:
                      for j, o in enumerate(sc.task.objects)])
 
 
-def _arriving(sc: Scenario, state: State, measured_vel: np.ndarray) -> np.ndarray:
-    """Unheld moving objects whose one-step slide ends in their goals, at the committed
-    velocity or at the measured one: slower than ``STILL_SPEED`` the committed state has it at
-    rest, and one sliding in from just outside would look undelivered for a replan (measured:
+def _arriving(sc: Scenario, state: State, measured: Measured) -> np.ndarray:
+    """Unheld moving objects whose one-step slide ends in their goals, in the committed state
+    or in the measured one: slower than ``STILL_SPEED`` the committed state has it at rest,
+    and one sliding in from just outside would look undelivered for a replan (measured:
     "stuck" for one replan when its goal lay out of reach)."""
     arriving = np.zeros(sc.n_objects, bool)
-    for vel in (state.object_vel, measured_vel):
+    for pos, vel in ((state.object_pos, state.object_vel),
+                     (np.asarray(measured.object_pos, float),
+                      np.asarray(measured.object_vel, float))):
         moving = np.linalg.norm(vel, axis=1) > 0
-        arriving |= _stops_in_goal(sc, state.object_pos, vel) & moving
+        arriving |= _stops_in_goal(sc, pos, vel) & moving
     return arriving & ~state.grasp.any(axis=0)
 
 
-def _resting(sc: Scenario, state: State, released: np.ndarray,
-             measured_vel: np.ndarray) -> np.ndarray:
+def _resting(sc: Scenario, state: State, released: np.ndarray, measured: Measured) -> np.ndarray:
     """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
     counts where ``released`` (N,): the hand has nothing left to do with it and lets go when it
-    moves on. Where an object stops counts too (``measured_vel``, before slow speeds are taken
-    as noise): one creeping across its goal's edge is not delivered (measured: reported done,
-    it ended 0.4 mm outside at 2.5 mm/s)."""
+    moves on. Where the measured object stops counts too (before slow speeds are taken as
+    noise): one creeping across its goal's edge is not delivered (measured: reported done, it
+    ended 0.4 mm outside at 2.5 mm/s). That stop point is the measured position's, not the
+    committed one's: a plan's slide ends at its nominal end point, and the drag's rest of it
+    added there would count the slide twice."""
     inside = (_stops_in_goal(sc, state.object_pos, 0.0)
-              & _stops_in_goal(sc, state.object_pos, measured_vel))
+              & _stops_in_goal(sc, np.asarray(measured.object_pos, float),
+                               np.asarray(measured.object_vel, float)))
     return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
 
 
