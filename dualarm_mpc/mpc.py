@@ -364,7 +364,7 @@ def _lost(sc: Scenario, state: State) -> np.ndarray:
 def _stops_in_goal(sc: Scenario, pos: np.ndarray, vel) -> np.ndarray:
     """(N,) whether each unheld object at ``pos`` moving at ``vel`` stops in its goal: the
     one-step slide carries it v·Δt on (docs/model.md; on the robot the table's drag)."""
-    stop = pos + sc.robot.dt * np.asarray(vel, float)
+    stop = np.asarray(pos, float) + sc.robot.dt * np.asarray(vel, float)
     return np.array([in_goal(stop[j], sc.task.goals[o.goal])
                      for j, o in enumerate(sc.task.objects)])
 
@@ -376,8 +376,7 @@ def _arriving(sc: Scenario, state: State, measured: Measured) -> np.ndarray:
     "stuck" for one replan when its goal lay out of reach)."""
     arriving = np.zeros(sc.n_objects, bool)
     for pos, vel in ((state.object_pos, state.object_vel),
-                     (np.asarray(measured.object_pos, float),
-                      np.asarray(measured.object_vel, float))):
+                     (measured.object_pos, measured.object_vel)):
         moving = np.linalg.norm(vel, axis=1) > 0
         arriving |= _stops_in_goal(sc, pos, vel) & moving
     return arriving & ~state.grasp.any(axis=0)
@@ -392,8 +391,7 @@ def _resting(sc: Scenario, state: State, released: np.ndarray, measured: Measure
     committed one's: a plan's slide ends at its nominal end point, and the drag's rest of it
     added there would count the slide twice."""
     inside = (_stops_in_goal(sc, state.object_pos, 0.0)
-              & _stops_in_goal(sc, np.asarray(measured.object_pos, float),
-                               np.asarray(measured.object_vel, float)))
+              & _stops_in_goal(sc, measured.object_pos, measured.object_vel))
     return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
 
 
