@@ -95,15 +95,22 @@ def test_an_object_sliding_slowly_into_a_goal_out_of_reach_is_arriving_not_lost(
     assert r.status == "stuck"
 
 
-def _in_force(sc: Scenario, obj: np.ndarray, step_objects: tuple[int, ...]) -> MpcState:
-    """A plan made at t = 0, three steps long, that holds the hands at their start and every
-    object at rest at ``obj`` (N, 2)."""
+def _in_force(sc: Scenario, obj: np.ndarray, step_objects: tuple[int, ...], hand=None,
+              grasp=None) -> MpcState:
+    """A plan made at t = 0, three steps long, that holds the hands at ``hand`` (their start by
+    default) with ``grasp`` (2, N) (nothing held by default) and every object at rest at
+    ``obj`` (N, 2)."""
     from dualarm_mpc.plan import TimedTrajectory, Trajectory
 
-    hand, n = np.array(sc.robot.hand_start, float), len(obj)
-    plan = Trajectory(np.repeat(hand[None], 3, axis=0), np.zeros((3, 2, 2)), np.zeros((2, 2, 2)),
-                      np.repeat(obj[None], 3, axis=0), np.zeros((3, n, 2)),
-                      np.zeros((3, 2, n), int))
+    n = len(obj)
+    hand = np.array(sc.robot.hand_start if hand is None else hand, float)
+    grasp = np.zeros((2, n), int) if grasp is None else grasp
+
+    def still(a):
+        return np.repeat(np.asarray(a)[None], 3, axis=0)
+
+    plan = Trajectory(still(hand), np.zeros((3, 2, 2)), np.zeros((2, 2, 2)), still(obj),
+                      np.zeros((3, n, 2)), still(grasp))
     return MpcState(plan=TimedTrajectory(0.0, sc.robot.dt, plan), step_objects=step_objects,
                     step_target=len(step_objects), horizon_end=2 * sc.robot.dt,
                     delivered_time=(None,) * n)
@@ -225,20 +232,11 @@ def test_an_object_held_still_in_its_goal_by_the_plan_in_force_is_delivered() ->
     short of its target box (a solver tolerance), the hand at the edge of its range. Every replan
     found horizon 2 and held it still; the plan never ended, so the held object was never counted
     delivered, for 185 s. A plan that keeps it where it is to its end leaves nothing to do."""
-    from dualarm_mpc.plan import TimedTrajectory, Trajectory
-
     sc = scenario(objects=[{"name": "a", "position": [-0.1, 0.7], "goal": "green"}])
     hand = np.array([[-0.05, 0.9], [-0.3, 0.5]])  # hand 1 at the hands' y limit, 2 cm above it
     obj = np.array([[-0.1, 0.88 - 9e-8]])  # the target box starts at y = 0.88 (goal margin)
     grasp = np.array([[1], [0]])
-
-    def still(n):
-        return np.repeat(n[None], 3, axis=0)
-
-    hold = Trajectory(still(hand), np.zeros((3, 2, 2)), np.zeros((2, 2, 2)), still(obj),
-                      np.zeros((3, 1, 2)), still(grasp))
-    s = MpcState(plan=TimedTrajectory(0.0, sc.robot.dt, hold), step_objects=(0,), step_target=1,
-                 horizon_end=2.0, delivered_time=(None,))
+    s = _in_force(sc, obj, step_objects=(0,), hand=hand, grasp=grasp)
     measured = Measured(hand_pos=hand, hand_vel=np.zeros((2, 2)), object_pos=obj,
                         object_vel=np.zeros((1, 2)), grasp=grasp.astype(float))
     core = Replanner(sc)
