@@ -17,6 +17,15 @@ A visit is a set of hand states:
   velocity (docs/model.md), so from the last held step k it ends in G_j when
   p_hand(k) + 2Δt·v_hand(k) ∈ G_j ⊕ h_j.
 
+Under no-throw (18) a hand holds j from its first grab until j is in its goal, so in between
+the propagation follows j itself, not the hand: at the grab j stands at p_j and takes the
+hand's velocity, it moves as the hand does (in the hand range widened by h_j), and it is
+delivered when p_j(k) ∈ G_j; after that the hand is j's position ⊕ [−h_j, h_j]. Taken on the
+hand, G_j ⊕ h_j lets a carry end up to 2h_j short of the distance the object has to travel,
+whatever offset the hand grabbed it at: half a step at full speed, and a pair's route one step
+shorter than any plan (measured on (3,5) rule 1, where the search's one-hand programs of an
+order allowed first grabs a step earlier than the hand-frame route said).
+
 Visits are chained in the order of a route. When no-throw (18) holds for every object of the
 set, an object is released only in its goal, so the hand finishes one object before it grabs
 the next (eq. 15) and the routes are the orders of the set; otherwise a hand could put an
@@ -143,6 +152,44 @@ def _sheared_sum(poly: Polygon, du: float) -> Polygon:
     return out
 
 
+@dataclass(frozen=True)
+class _Grab:
+    """The first grab of an object held until it is in its goal (under no-throw): the visit's
+    ``slabs`` are on the hand, and from then on the stage follows the object, which stands at
+    ``at`` and takes the hand's velocity (eq. 8); it stays within the hand range ⊕ ``half``."""
+
+    slabs: tuple[Slab, ...]
+    at: float
+    half: float
+
+
+@dataclass(frozen=True)
+class _Release:
+    """The object held since its :class:`_Grab` is in its goal (``slabs``, on the object): from
+    then on the stage follows the hand again, anywhere within ``half`` of the object."""
+
+    slabs: tuple[Slab, ...]
+    half: float
+
+
+Visit = tuple[Slab, ...] | _Grab | _Release  # a union of slabs on the hand, or a change of frame
+
+
+def _enter(visit: Visit, poly: Polygon) -> Polygon:
+    """The states that make ``visit`` (``poly``, already within its slabs) in the frame that
+    follows it."""
+    if not poly or not isinstance(visit, (_Grab, _Release)):
+        return poly
+    if isinstance(visit, _Grab):
+        speeds = [v for _, v in poly]
+        return _hull([(visit.at, min(speeds)), (visit.at, max(speeds))])
+    return _hull([(x + d, v) for x, v in poly for d in (-visit.half, visit.half)])
+
+
+def _slabs(visit: Visit) -> tuple[Slab, ...]:
+    return visit.slabs if isinstance(visit, (_Grab, _Release)) else visit
+
+
 class _Stage:
     """The (position, velocity) set of one axis after a prefix of a route's visits, step by step
     (``sets[k]``) as far as it has been asked; the first step at which it is not empty, and
@@ -151,8 +198,11 @@ class _Stage:
     sequential step ask the same, a little further."""
 
     def __init__(self, axis: Axis, start: tuple[float, float], parent: _Stage | None,
-                 slabs: tuple[Slab, ...]) -> None:
-        self.axis, self.parent, self.slabs = axis, parent, slabs
+                 visit: Visit) -> None:
+        if isinstance(visit, _Grab):  # the object, within the hand range ⊕ its half size
+            dt, v_max, u_max, lo, hi = axis
+            axis = (dt, v_max, u_max, lo - visit.half, hi + visit.half)
+        self.axis, self.parent, self.visit = axis, parent, visit
         self.sets: list[Polygon] = [[start] if parent is None else []]
         self.first: int | None = 0 if parent is None else None
         self.rest: int | None = None
@@ -162,7 +212,8 @@ class _Stage:
             j = len(self.sets)
             reached = _step(self.axis, self.sets[-1])
             if self.parent is not None:  # or makes the visit at step j
-                reached = _union([reached] + [_slab(self.parent.at(j), *s) for s in self.slabs])
+                reached = _union([reached] + [_enter(self.visit, _slab(self.parent.at(j), *s))
+                                              for s in _slabs(self.visit)])
             self.sets.append(reached)
             if reached and self.first is None:
                 self.first = j
@@ -176,7 +227,7 @@ _STAGES_LOCK = threading.Lock()  # the search's workers ask too
 
 
 def _stages(axis: Axis, start: tuple[float, float],
-            visits: tuple[tuple[Slab, ...], ...]) -> list[_Stage]:
+            visits: tuple[Visit, ...]) -> list[_Stage]:
     stages: list[_Stage] = []
     for m in range(len(visits) + 1):
         key = (axis, start, visits[:m])
@@ -187,12 +238,13 @@ def _stages(axis: Axis, start: tuple[float, float],
     return stages
 
 
-def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
+def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[Visit, ...],
                cap: int) -> tuple[int, ...]:
     """The earliest step of each visit when one axis of a hand starting at ``start``
     (position, velocity) makes ``visits`` in order, each at a step ≥ 1 (several may share
     one), and last the fewest steps T ≤ ``cap`` after which it is also at rest; ``cap + 1``
-    for what it cannot reach. A visit is a union of slabs. Pure, so kept and resumed."""
+    for what it cannot reach. A visit is a union of slabs on the hand, or a change of frame
+    (:data:`Visit`). Pure, so kept and resumed."""
     with _STAGES_LOCK:
         if len(_STAGES) >= 2048:  # a few MB; the stages of earlier steps are of no use
             _STAGES.clear()
@@ -204,7 +256,7 @@ def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab,
         return tuple(cap + 1 if t is None or t > cap else t for t in times)
 
 
-def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[tuple[Slab, ...], ...],
+def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[Visit, ...],
                cap: int) -> int:
     """The fewest steps after which one axis has made ``visits`` and is at rest
     (:func:`axis_times`)."""
@@ -278,12 +330,14 @@ def _route(model: Model, state: State, hand: int, order: tuple[int, ...], a: int
 
 
 def _visits(model: Model, state: State, n: int, a: int,
-            no_throw: frozenset[int]) -> tuple[tuple[Slab, ...], tuple[Slab, ...]]:
+            no_throw: frozenset[int]) -> tuple[Visit, Visit]:
     """Object n's two visits on axis a: grab, then deliver (held, or after its slide)."""
     p, h = float(state.object_pos[n, a]), float(model.grasp_half[n])
+    if n in no_throw:  # held from its first grab until it is in its goal: follow the object
+        goal = (float(model.goals[n].lo[a]), float(model.goals[n].hi[a]), 0.0)
+        return _Grab(((p - h, p + h, 0.0),), p, h), _Release((goal,), h)
     lo, hi = float(model.goals[n].lo[a]) - h, float(model.goals[n].hi[a]) + h
-    deliver = ((lo, hi, 0.0),) if n in no_throw else ((lo, hi, 0.0), (lo, hi, 2 * model.dt))
-    return ((p - h, p + h, 0.0),), deliver
+    return ((p - h, p + h, 0.0),), ((lo, hi, 0.0), (lo, hi, 2 * model.dt))
 
 
 def horizon_bound(model: Model, state: State, m_o: int, no_throw: frozenset[int],

@@ -35,6 +35,19 @@ def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:
     assert axis_steps(axis, (0.0, 0.0), (((1.5, 1.6, 0.0),),), 40) == 41
 
 
+def test_a_held_object_travels_its_whole_distance_whatever_offset_the_hand_grabbed_it_at() -> None:
+    # An object at 0 (half size 0.05) to a goal [0.65, 0.75], the hand at rest at 0. On the
+    # hand alone, "deliver" is the hand in [0.6, 0.8]: it gets there at rest in 5 steps (0.1,
+    # 0.3, 0.5, 0.6), but then the object it grabbed at step 1 stands at 0.6, outside. Followed
+    # itself (from its grab at step 1, at 0 with at most 0.1 m/s), the object is first in its
+    # goal at step 5 (0.7) and still moving: at rest at step 6, like every plan.
+    axis = (1.0, 0.2, 0.1, -1.0, 1.0)
+    grab = ((-0.05, 0.05, 0.0),)
+    assert axis_times(axis, (0.0, 0.0), (grab, ((0.6, 0.8, 0.0),)), 40) == (1, 5, 5)
+    held = (route._Grab(grab, 0.0, 0.05), route._Release(((0.65, 0.75, 0.0),), 0.05))
+    assert axis_times(axis, (0.0, 0.0), held, 40) == (1, 5, 6)
+
+
 def test_one_step_of_a_polygon_is_the_hull_of_its_moved_vertices() -> None:
     # The one-pass Minkowski step against the definition: every vertex sheared (x + Δt·v)
     # and moved by ±Δt·u_max, then the convex hull (as a set: the same vertices, any start).
