@@ -23,8 +23,8 @@ hand's velocity, it moves as the hand does (in the hand range widened by h_j), a
 delivered when p_j(k) ∈ G_j; after that the hand is j's position ⊕ [−h_j, h_j]. Taken on the
 hand, G_j ⊕ h_j lets a carry end up to 2h_j short of the distance the object has to travel,
 whatever offset the hand grabbed it at: half a step at full speed, and a pair's route one step
-shorter than any plan (measured on (3,5) rule 1, where the search's one-hand programs of an
-order allowed first grabs a step earlier than the hand-frame route said).
+shorter than any plan (found on (3,5) rule 1: the one-hand programs of an order had to make
+their first grabs a step before the latest steps the hand-frame route allowed).
 
 Visits are chained in the order of a route. When no-throw (18) holds for every object of the
 set, an object is released only in its goal, so the hand finishes one object before it grabs
