@@ -165,7 +165,8 @@ class HorizonProgram:
           which lift the LP bound (otherwise near zero);
         * ``orders`` (``route.Order``, one per hand at most): each hand grabs the objects of
           its order in that order — η_ij(k) ≤ Σ_{k' < k} η_ij'(k') for j' the one before j —
-          and none before its route allows (η_ij(k) = 0, θ_j(k) = 0 there)."""
+          and none before its route allows (η_ij(k) = 0, θ_j(k) = 0 there), nor first
+          grabbed after its latest step (``Order.latest``: Σ_{k ≤ latest} η_ij(k) ≥ 1)."""
         f = self._specified(spec)
         f = dataclasses.replace(f, c=f.c.copy(), col_lb=f.col_lb.copy(), col_ub=f.col_ub.copy())
         f.c[: len(self._hand_cost[0])] = sum(self._hand_cost[i] for i in hands)
@@ -185,10 +186,19 @@ class HorizonProgram:
 
     def _ordered(self, f: StandardForm, order: Order) -> StandardForm:
         eta = self.x.eta[:, order.hand]
-        for n, grab, goal in zip(order.objects, order.grab, order.goal, strict=True):
+        rows, cols, vals, m = [], [], [], 0
+        lb = []
+        for n, grab, goal, latest in zip(order.objects, order.grab, order.goal,
+                                         order.latest(self.horizon), strict=True):
             f.col_ub[eta[:grab, n]] = 0.0
             f.col_ub[self.x.theta[:goal, n]] = 0.0
-        rows, cols, vals, m = [], [], [], 0
+            # row m: Σ_{grab ≤ k ≤ latest} η(k) ≥ 1, grabbed in time for the rest of the route
+            span = eta[max(grab, 1):latest + 1, n]
+            rows += [m] * len(span)
+            cols += list(span)
+            vals += [1.0] * len(span)
+            lb.append(1.0)
+            m += 1
         first_grab = dict(zip(order.objects, order.grab, strict=True))
         for before, after in itertools.pairwise(order.objects):
             # row m: η_after(k) − Σ_{k'<k} η_before(k') ≤ 0; before its grab step η_after is 0
@@ -196,9 +206,10 @@ class HorizonProgram:
                 rows += [m] * k
                 cols += [eta[k, after], *eta[1:k, before]]
                 vals += [1.0] + [-1.0] * (k - 1)
+                lb.append(-np.inf)
                 m += 1
         a = sp.csr_matrix((vals, (rows, cols)), shape=(m, len(f.c)))
-        return f.with_rows(a, np.full(m, -np.inf), np.zeros(m))
+        return f.with_rows(a, np.array(lb), np.where(np.isinf(lb), 0.0, np.inf))
 
     def solve(self, spec: Specification, options: SolveOptions,
               start: Callable[[program.HorizonVariables], Start] | None = None,

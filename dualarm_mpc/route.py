@@ -33,6 +33,10 @@ object down on the way and come back for it, and the bound is that of the slowes
 (Routes that interleave two objects' visits, the first put down on the way, bound that case
 more tightly, but measured under rule 2 they cost more time than they save.)
 
+Run from any state of the hand, the same propagation counts the steps from an object's first
+grab to the end of its order's route (``Order.after``), so a plan of horizon T grabs it by
+T − after: the latest first grab.
+
 Nothing else enters (no other rule, no other hand, no eq. 16): every plan of one hand's program
 makes these visits, so when the bound exceeds a horizon, the program has no plan there.
 """
@@ -197,13 +201,15 @@ class _Stage:
     (an order's pairs and triples start with its single objects), and the horizons of a
     sequential step ask the same, a little further."""
 
-    def __init__(self, axis: Axis, start: tuple[float, float], parent: _Stage | None,
+    def __init__(self, axis: Axis, start: tuple[float, float] | None, parent: _Stage | None,
                  visit: Visit) -> None:
+        dt, v_max, u_max, lo, hi = axis
         if isinstance(visit, _Grab):  # the object, within the hand range ⊕ its half size
-            dt, v_max, u_max, lo, hi = axis
             axis = (dt, v_max, u_max, lo - visit.half, hi + visit.half)
         self.axis, self.parent, self.visit = axis, parent, visit
-        self.sets: list[Polygon] = [[start] if parent is None else []]
+        anywhere = [(lo, -v_max), (hi, -v_max), (hi, v_max), (lo, v_max)]
+        self.sets: list[Polygon] = [[] if parent is not None else
+                                    anywhere if start is None else [start]]
         self.first: int | None = 0 if parent is None else None
         self.rest: int | None = None
 
@@ -226,7 +232,7 @@ _STAGES: dict[tuple, _Stage] = {}
 _STAGES_LOCK = threading.Lock()  # the search's workers ask too
 
 
-def _stages(axis: Axis, start: tuple[float, float],
+def _stages(axis: Axis, start: tuple[float, float] | None,
             visits: tuple[Visit, ...]) -> list[_Stage]:
     stages: list[_Stage] = []
     for m in range(len(visits) + 1):
@@ -238,13 +244,13 @@ def _stages(axis: Axis, start: tuple[float, float],
     return stages
 
 
-def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[Visit, ...],
+def axis_times(axis: Axis, start: tuple[float, float] | None, visits: tuple[Visit, ...],
                cap: int) -> tuple[int, ...]:
     """The earliest step of each visit when one axis of a hand starting at ``start``
-    (position, velocity) makes ``visits`` in order, each at a step ≥ 1 (several may share
-    one), and last the fewest steps T ≤ ``cap`` after which it is also at rest; ``cap + 1``
-    for what it cannot reach. A visit is a union of slabs on the hand, or a change of frame
-    (:data:`Visit`). Pure, so kept and resumed."""
+    (position, velocity; None: any state within the bounds) makes ``visits`` in order, each at
+    a step ≥ 1 (several may share one), and last the fewest steps T ≤ ``cap`` after which it
+    is also at rest; ``cap + 1`` for what it cannot reach. A visit is a union of slabs on the
+    hand, or a change of frame (:data:`Visit`). Pure, so kept and resumed."""
     with _STAGES_LOCK:
         if len(_STAGES) >= 2048:  # a few MB; the stages of earlier steps are of no use
             _STAGES.clear()
@@ -256,7 +262,7 @@ def axis_times(axis: Axis, start: tuple[float, float], visits: tuple[Visit, ...]
         return tuple(cap + 1 if t is None or t > cap else t for t in times)
 
 
-def axis_steps(axis: Axis, start: tuple[float, float], visits: tuple[Visit, ...],
+def axis_steps(axis: Axis, start: tuple[float, float] | None, visits: tuple[Visit, ...],
                cap: int) -> int:
     """The fewest steps after which one axis has made ``visits`` and is at rest
     (:func:`axis_times`)."""
@@ -292,14 +298,21 @@ def route_steps(model: Model, state: State, hand: int, objects: tuple[int, ...],
 @dataclass(frozen=True)
 class Order:
     """One order in which a hand delivers a set of no-throw objects, and what its route bounds:
-    the earliest step at which each object can be first grabbed and first in its goal, and the
-    fewest steps of the whole route (at rest)."""
+    the earliest step at which each object can be first grabbed and first in its goal, the
+    fewest steps of the whole route (at rest), and the fewest steps from each object's first
+    grab to the route's end (``after``): in a plan of horizon T the hand grabs it by step
+    T − after (:meth:`latest`)."""
 
     hand: int
     objects: tuple[int, ...]
     grab: tuple[int, ...]
     goal: tuple[int, ...]
     steps: int
+    after: tuple[int, ...]
+
+    def latest(self, horizon: int) -> tuple[int, ...]:
+        """The latest step of each object's first grab in a plan of ``horizon`` steps."""
+        return tuple(horizon - a for a in self.after)
 
 
 def orders(model: Model, state: State, hand: int, objects: tuple[int, ...],
@@ -316,8 +329,24 @@ def orders(model: Model, state: State, hand: int, objects: tuple[int, ...],
                                                  cap))
         if times[-1] <= cap:
             found.append(Order(hand, order, tuple(int(t) for t in times[0:-1:2]),
-                               tuple(int(t) for t in times[1:-1:2]), int(times[-1])))
+                               tuple(int(t) for t in times[1:-1:2]), int(times[-1]),
+                               _after(model, state, hand, order, no_throw, cap)))
     return sorted(found, key=lambda o: o.steps)
+
+
+def _after(model: Model, state: State, hand: int, order: tuple[int, ...],
+           no_throw: frozenset[int], cap: int) -> tuple[int, ...]:
+    """The fewest steps from the first grab of each object of ``order`` to the end of its
+    route, at rest: the route of the objects from there on, from any state of the hand (at
+    step 0) whose grab at step 1 leaves the object at its place with any velocity (eq. 8)."""
+    after = []
+    for m in range(len(order)):
+        steps = 0
+        for a in range(2):
+            axis, _, visits = _route(model, state, hand, order[m:], a, no_throw)
+            steps = max(steps, axis_steps(axis, None, visits, cap + 1) - 1)
+        after.append(steps)
+    return tuple(after)
 
 
 def _route(model: Model, state: State, hand: int, order: tuple[int, ...], a: int,

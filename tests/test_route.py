@@ -9,6 +9,7 @@ hands, both rules, sets of one and two objects — and the bound is checked to b
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -20,7 +21,7 @@ from dualarm_mpc.mld import N_HANDS, Model, State, in_goal
 from dualarm_mpc.route import axis_steps, axis_times, horizon_bound, orders, route_steps
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.search import restricted
-from dualarm_mpc.solver import SolveOptions, Status
+from dualarm_mpc.solver import SolveOptions, Status, solve_standard_form
 from dualarm_mpc.spec import specification
 
 
@@ -46,6 +47,9 @@ def test_a_held_object_travels_its_whole_distance_whatever_offset_the_hand_grabb
     assert axis_times(axis, (0.0, 0.0), (grab, ((0.6, 0.8, 0.0),)), 40) == (1, 5, 5)
     held = (route._Grab(grab, 0.0, 0.05), route._Release(((0.65, 0.75, 0.0),), 0.05))
     assert axis_times(axis, (0.0, 0.0), held, 40) == (1, 5, 6)
+    # From any state (None), the grab at step 1 can leave the object moving at 0.2 m/s
+    # towards its goal: 0, 0.2, 0.4, 0.6, 0.7 at rest, four steps after the grab.
+    assert axis_times(axis, None, held, 40) == (1, 5, 5)
 
 
 def test_one_step_of_a_polygon_is_the_hull_of_its_moved_vertices() -> None:
@@ -162,7 +166,9 @@ def test_the_step_bound_never_rules_out_a_horizon_the_monolithic_milp_allows(see
 def test_splitting_a_share_by_order_keeps_its_optimum_and_every_plan(seed) -> None:
     """Under no-throw, hand i's program for a pair is the union of its orders' programs: the
     best order has the whole program's optimum, and the whole program's plan follows one order
-    without grabbing an object, or having it in its goal, before that order's route allows."""
+    without grabbing an object, or having it in its goal, before that order's route allows, nor
+    grabbing an object later than the rest of its route allows: an order's program with the
+    first grab forced after that step has no plan."""
     scenario = load_scenario("table1_vd", {"rule": 1, "seed": seed, "delivery": "reach",
                                            "random_objects": {"count": 4}})
     objects = [0, 1, 2, 3]
@@ -195,8 +201,15 @@ def test_splitting_a_share_by_order_keeps_its_optimum_and_every_plan(seed) -> No
         order = next(o for o in found if list(o.objects) == sorted(share, key=dict(
             zip(share, first_grab, strict=True)).get))
         for m, n in enumerate(order.objects):
-            assert first_grab[share.index(n)] >= order.grab[m]
+            assert order.grab[m] <= first_grab[share.index(n)] <= order.latest(horizon)[m]
             assert first_goal[share.index(n)] >= order.goal[m]
+        first = dataclasses.replace(options, mip_rel_gap=1.0)
+        for o in (o for o in found if o.steps <= horizon):
+            unbounded = dataclasses.replace(o, after=(0,) * len(o.objects))
+            for n, latest in zip(o.objects, o.latest(horizon), strict=True):
+                f = program.standard_form(task, allowed=allowed, hands=(i,), orders=(unbounded,))
+                f.col_ub[program.x.eta[1:latest + 1, i, n]] = 0.0  # first grabbed after latest
+                assert solve_standard_form(f, first).status is Status.INFEASIBLE, (o, n)
 
 
 @pytest.mark.parametrize("seed", range(3))
