@@ -186,8 +186,7 @@ class HorizonProgram:
 
     def _ordered(self, f: StandardForm, order: Order) -> StandardForm:
         eta = self.x.eta[:, order.hand]
-        rows, cols, vals, m = [], [], [], 0
-        lb = []
+        rows, cols, vals, lb, ub, m = [], [], [], [], [], 0
         for n, grab, goal, latest in zip(order.objects, order.grab, order.goal,
                                          order.latest(self.horizon), strict=True):
             f.col_ub[eta[:grab, n]] = 0.0
@@ -198,6 +197,7 @@ class HorizonProgram:
             cols += list(span)
             vals += [1.0] * len(span)
             lb.append(1.0)
+            ub.append(np.inf)
             m += 1
         first_grab = dict(zip(order.objects, order.grab, strict=True))
         for before, after in itertools.pairwise(order.objects):
@@ -207,9 +207,10 @@ class HorizonProgram:
                 cols += [eta[k, after], *eta[1:k, before]]
                 vals += [1.0] + [-1.0] * (k - 1)
                 lb.append(-np.inf)
+                ub.append(0.0)
                 m += 1
         a = sp.csr_matrix((vals, (rows, cols)), shape=(m, len(f.c)))
-        return f.with_rows(a, np.array(lb), np.where(np.isinf(lb), 0.0, np.inf))
+        return f.with_rows(a, np.array(lb), np.array(ub))
 
     def solve(self, spec: Specification, options: SolveOptions,
               start: Callable[[program.HorizonVariables], Start] | None = None,
