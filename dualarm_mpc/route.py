@@ -207,9 +207,13 @@ class _Stage:
         if isinstance(visit, _Grab):  # the object, within the hand range ⊕ its half size
             axis = (dt, v_max, u_max, lo - visit.half, hi + visit.half)
         self.axis, self.parent, self.visit = axis, parent, visit
-        anywhere = [(lo, -v_max), (hi, -v_max), (hi, v_max), (lo, v_max)]
-        self.sets: list[Polygon] = [[] if parent is not None else
-                                    anywhere if start is None else [start]]
+        if parent is not None:
+            first: Polygon = []
+        elif start is None:  # any state within the bounds
+            first = [(lo, -v_max), (hi, -v_max), (hi, v_max), (lo, v_max)]
+        else:
+            first = [start]
+        self.sets: list[Polygon] = [first]
         self.first: int | None = 0 if parent is None else None
         self.rest: int | None = None
 
@@ -341,11 +345,8 @@ def _after(model: Model, state: State, hand: int, order: tuple[int, ...],
     step 0) whose grab at step 1 leaves the object at its place with any velocity (eq. 8)."""
     after = []
     for m in range(len(order)):
-        steps = 0
-        for a in range(2):
-            axis, _, visits = _route(model, state, hand, order[m:], a, no_throw)
-            steps = max(steps, axis_steps(axis, None, visits, cap + 1) - 1)
-        after.append(steps)
+        routes = (_route(model, state, hand, order[m:], a, no_throw) for a in range(2))
+        after.append(max(axis_steps(axis, None, visits, cap + 1) for axis, _, visits in routes) - 1)
     return tuple(after)
 
 
