@@ -128,7 +128,7 @@ class Controller(LeafSystem):
         elbow_signs: Sequence[int] = ELBOW_SIGNS,
     ):
         super().__init__()
-        self._bases = np.asarray(arm_bases, dtype=float).reshape(2, 2)
+        self._bases = np.asarray(arm_bases, dtype=float).reshape(2, 2).tolist()
         self._lengths = tuple(float(x) for x in link_lengths)
         if len(self._lengths) != 2 or min(self._lengths) <= 0:
             raise ValueError(f"link_lengths: expected two positive lengths, got {link_lengths}")
@@ -143,7 +143,8 @@ class Controller(LeafSystem):
         if any(s not in (-1, 1) for s in elbow_signs) or len(elbow_signs) != 2:
             raise ValueError(f"elbow_signs: expected two of ±1, got {elbow_signs}")
         self._positions = np.asarray(position_indices, dtype=int)
-        self._order = np.asarray(actuator_order, dtype=int)
+        order = np.asarray(actuator_order, dtype=int)
+        self._desired_order = np.concatenate([order, 6 + order])  # canonical [q; v] → port's
         self._signs = tuple(int(s) for s in elbow_signs)
         self._hand_reference = self.DeclareVectorInputPort("hand_reference", 12)
         self._plant_state = self.DeclareVectorInputPort("plant_state", plant_state_size)
@@ -162,19 +163,20 @@ class Controller(LeafSystem):
 
     def joint_targets(self, hand_reference: np.ndarray, q_measured: np.ndarray) -> np.ndarray:
         """[q(6); v(6)] in canonical order from a reference (12) and measured canonical q (6)."""
-        ref = np.asarray(hand_reference, dtype=float).reshape(2, 6)
-        q = np.zeros(6)
-        v = np.zeros(6)
+        # Python floats, not numpy slices: this runs at every 2 ms plant step.
+        ref = np.asarray(hand_reference, dtype=float).tolist()
+        measured = np.asarray(q_measured, dtype=float).tolist()
+        q, v = [], []
         for i in range(2):
-            angles = scara_ik(ref[i, 0:2], self._bases[i], self._lengths, self._signs[i])
-            angles = [unwrap_to(a, q_measured[3 * i + m]) for m, a in enumerate(angles)]
-            q[3 * i : 3 * i + 2] = angles
-            q[3 * i + 2] = ref[i, 2]
-            v[3 * i : 3 * i + 2] = scara_joint_velocity(angles, ref[i, 3:5], self._lengths)
-            v[3 * i + 2] = ref[i, 5]
-        return np.concatenate([q, v])
+            x, y, z, vx, vy, vz = ref[6 * i : 6 * i + 6]
+            q1, q2 = scara_ik((x, y), self._bases[i], self._lengths, self._signs[i])
+            q1, q2 = unwrap_to(q1, measured[3 * i]), unwrap_to(q2, measured[3 * i + 1])
+            w1, w2 = scara_joint_velocity((q1, q2), (vx, vy), self._lengths)
+            q += [q1, q2, z]
+            v += [w1, w2, vz]
+        return np.array(q + v)
 
     def _calc_desired_state(self, context, output):
         x = self._plant_state.Eval(context)
         canonical = self.joint_targets(self._hand_reference.Eval(context), x[self._positions])
-        output.SetFromVector(np.concatenate([canonical[self._order], canonical[6 + self._order]]))
+        output.SetFromVector(canonical[self._desired_order])

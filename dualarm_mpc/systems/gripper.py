@@ -99,9 +99,7 @@ class Gripper(LeafSystem):
             )
         self._n = n
         self._hands = tuple(int(b.index()) for b in hand_bodies)
-        self._hand_body_index = tuple(b.index() for b in hand_bodies)
         self._objects = tuple(int(b.index()) for b in object_bodies)
-        self._object_body_index = tuple(b.index() for b in object_bodies)
         self._reach = np.asarray(grasp_half_sizes, dtype=float) + tolerance
         self._height_tolerance = height_tolerance
         self._k = stiffness
@@ -117,6 +115,14 @@ class Gripper(LeafSystem):
             ]
         )
         self._c_yaw = yaw_inertia / yaw_time_constant
+
+        # The applied forces, their F_Bq_W set at each evaluation: the drag on each object, and
+        # the spring-damper of each pair (i, j) on its object and on its hand.
+        self._drag_on = [_applied_force(b.index()) for b in object_bodies]
+        self._pair_on_object = [_applied_force(b.index()) for _ in hand_bodies
+                                for b in object_bodies]
+        self._pair_on_hand = [_applied_force(h.index()) for h in hand_bodies
+                              for _ in object_bodies]
 
         self._grasp_command = self.DeclareVectorInputPort("grasp_command", 2 * n)
         self._body_poses = self.DeclareAbstractInputPort(
@@ -190,42 +196,56 @@ class Gripper(LeafSystem):
         )
 
     def _calc_spatial_forces(self, context, output):
-        attached, offset = self._split(context.get_discrete_state(self._state).get_value())
+        # Python floats, and the applied forces kept from call to call (the output copies them
+        # into Drake's vector): this runs at every 2 ms plant step.
+        x = context.get_discrete_state(self._state).get_value()
+        pairs = np.flatnonzero(x[: 2 * self._n]).tolist()
+        held = {pair % self._n for pair in pairs}
         forces = []
-        held = attached.reshape(2, self._n).any(axis=0)
-        if self._drag.any() and not held.all():
+        if self._drag.any() and len(held) < self._n:
             velocities = self._body_velocities.Eval(context)
-            for j in np.flatnonzero(~held):
-                v = velocities[self._objects[j]].translational()
-                speed = max(abs(v[0]), abs(v[1]))
+            for j, obj in enumerate(self._objects):
+                if j in held:
+                    continue
+                vx, vy, _ = velocities[obj].translational().tolist()
+                speed = max(abs(vx), abs(vy))
                 if speed < REST_NOISE:
                     continue
                 c = self._stop[j] if speed < STOP_SPEED else self._drag[j]
-                f = np.array([-c * v[0], -c * v[1], 0.0])
-                forces.append(self._force(self._object_body_index[j], [0.0, 0.0, 0.0], f))
-        if attached.any():
+                forces.append(_applied(self._drag_on[j], 0.0, -c * vx, -c * vy))
+        if pairs:
             poses = self._body_poses.Eval(context)
             velocities = self._body_velocities.Eval(context)
-            for pair in np.flatnonzero(attached):
-                i, j = divmod(int(pair), self._n)
+            offsets = x[2 * self._n :].tolist()
+            for pair in pairs:
+                i, j = divmod(pair, self._n)
                 hand, obj = self._hands[i], self._objects[j]
-                dp = poses[obj].translation()[:2] - poses[hand].translation()[:2]
-                dv = velocities[obj].translational()[:2] - velocities[hand].translational()[:2]
-                f = np.zeros(3)
-                f[:2] = -self._k * (dp - offset[pair]) - self._c[j] * dv
+                ox, oy, _ = poses[obj].translation().tolist()
+                hx, hy, _ = poses[hand].translation().tolist()
+                vox, voy, _ = velocities[obj].translational().tolist()
+                vhx, vhy, _ = velocities[hand].translational().tolist()
+                k, c = self._k, self._c[j]
+                fx = -k * (ox - hx - offsets[2 * pair]) - c * (vox - vhx)
+                fy = -k * (oy - hy - offsets[2 * pair + 1]) - c * (voy - vhy)
                 yaw = -self._c_yaw[j] * velocities[obj].rotational()[2]
-                forces.append(self._force(self._object_body_index[j], [0.0, 0.0, yaw], f))
-                forces.append(self._force(self._hand_body_index[i], [0.0, 0.0, 0.0], -f))
+                forces.append(_applied(self._pair_on_object[pair], yaw, fx, fy))
+                forces.append(_applied(self._pair_on_hand[pair], 0.0, -fx, -fy))
         output.set_value(forces)
-
-    @staticmethod
-    def _force(body_index, torque, force) -> ExternallyAppliedSpatialForce:
-        applied = ExternallyAppliedSpatialForce()
-        applied.body_index = body_index
-        applied.p_BoBq_B = np.zeros(3)
-        applied.F_Bq_W = SpatialForce(np.asarray(torque, float), np.asarray(force, float))
-        return applied
 
     def _calc_grasp(self, context, output):
         attached, _ = self._split(context.get_discrete_state(self._state).get_value())
         output.SetFromVector(attached)
+
+
+def _applied_force(body_index) -> ExternallyAppliedSpatialForce:
+    applied = ExternallyAppliedSpatialForce()
+    applied.body_index = body_index
+    applied.p_BoBq_B = np.zeros(3)
+    return applied
+
+
+def _applied(applied: ExternallyAppliedSpatialForce, yaw: float, fx: float,
+             fy: float) -> ExternallyAppliedSpatialForce:
+    """``applied`` with the torque (0, 0, yaw) and the force (fx, fy, 0) in the world frame."""
+    applied.F_Bq_W = SpatialForce(np.array([0.0, 0.0, yaw]), np.array([fx, fy, 0.0]))
+    return applied

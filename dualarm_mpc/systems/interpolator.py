@@ -54,38 +54,59 @@ def node_velocities(traj: Trajectory, k: int) -> np.ndarray:
     return v
 
 
+class HandSpline:
+    """A plan's spline, with its nodes computed once: the positions, :func:`node_velocities` and
+    node heights of every step (sampling it runs at every 2 ms plant step, a plan lasts a Δt)."""
+
+    def __init__(self, plan: TimedTrajectory, travel_height: float, grasp_height: float):
+        traj = plan.trajectory
+        self.plan = plan
+        self._last = len(traj.hand_pos) - 1
+        # Nested lists of floats: sampling is scalar arithmetic, cheaper than small arrays.
+        self._pos = np.asarray(traj.hand_pos, dtype=float).tolist()
+        self._vel = [node_velocities(traj, k).tolist() for k in range(self._last + 1)]
+        # Node m is low if hand i holds something at step m or m − 1 (steps clamped to the
+        # plan): m = 0..K + 1, the last completing a rise after a release at step K.
+        held = np.asarray(traj.grasp).any(axis=2)  # (K+1, 2)
+        held = np.vstack([held[:1], held, held[-1:]])  # steps −1..K+1, clamped
+        self._z = np.where(held[1:] | held[:-1], grasp_height, travel_height).tolist()
+
+    def at(self, t: float) -> np.ndarray:
+        """The hand reference at time t: per arm [x, y, z, vx, vy, vz] (length 12)."""
+        k, s = _step(self.plan, t)
+        dt, last = self.plan.dt, self._last
+        z0 = self._z[min(max(k, 0), last + 1)]
+        z1 = self._z[min(max(k + 1, 0), last + 1)]
+        rise, rate = 3 * s * s - 2 * s * s * s, (6 * s - 6 * s * s) / dt
+        out = []
+        if 0 <= k < last:
+            # Cubic Hermite on [t_k, t_{k+1}] through (p_k, v_k) and (p_{k+1}, v_{k+1}).
+            s2, s3 = s * s, s * s * s
+            h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
+            d00, d10, d01, d11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
+            p0, p1, v0, v1 = self._pos[k], self._pos[k + 1], self._vel[k], self._vel[k + 1]
+            for i in range(2):
+                (a, b), (c, d) = p0[i], p1[i]
+                (va, vb), (vc, vd) = v0[i], v1[i]
+                out += [h00 * a + h10 * dt * va + h01 * c + h11 * dt * vc,
+                        h00 * b + h10 * dt * vb + h01 * d + h11 * dt * vd,
+                        z0[i] + (z1[i] - z0[i]) * rise,
+                        (d00 * a + d10 * dt * va + d01 * c + d11 * dt * vc) / dt,
+                        (d00 * b + d10 * dt * vb + d01 * d + d11 * dt * vd) / dt,
+                        (z1[i] - z0[i]) * rate]
+        else:
+            p = self._pos[0 if k < 0 else last]
+            for i in range(2):
+                out += [p[i][0], p[i][1], z0[i] + (z1[i] - z0[i]) * rise,
+                        0.0, 0.0, (z1[i] - z0[i]) * rate]
+        return np.array(out)
+
+
 def sample_hands(
     plan: TimedTrajectory, t: float, travel_height: float, grasp_height: float
 ) -> np.ndarray:
     """The hand reference at time t: per arm [x, y, z, vx, vy, vz] (length 12)."""
-    traj = plan.trajectory
-    last = len(traj.hand_pos) - 1
-    k, s = _step(plan, t)
-    dt = plan.dt
-    out = np.zeros((2, 6))
-    if 0 <= k < last:
-        # Cubic Hermite on [t_k, t_{k+1}] through (p_k, v_k) and (p_{k+1}, v_{k+1}).
-        s2, s3 = s * s, s * s * s
-        h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2
-        d00, d10, d01, d11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
-        p0, p1 = traj.hand_pos[k], traj.hand_pos[k + 1]
-        v0, v1 = node_velocities(traj, k), node_velocities(traj, k + 1)
-        out[:, 0:2] = h00 * p0 + h10 * dt * v0 + h01 * p1 + h11 * dt * v1
-        out[:, 3:5] = (d00 * p0 + d10 * dt * v0 + d01 * p1 + d11 * dt * v1) / dt
-    else:
-        out[:, 0:2] = traj.hand_pos[0 if k < 0 else last]
-
-    held = np.asarray(traj.grasp).any(axis=2)  # (K+1, 2): hand i holds something at step k
-
-    def node_low(m: int) -> np.ndarray:
-        a, b = held[min(max(m, 0), last)], held[min(max(m - 1, 0), last)]
-        return a | b
-
-    z0 = np.where(node_low(k), grasp_height, travel_height)
-    z1 = np.where(node_low(k + 1), grasp_height, travel_height)
-    out[:, 2] = z0 + (z1 - z0) * (3 * s * s - 2 * s * s * s)
-    out[:, 5] = (z1 - z0) * (6 * s - 6 * s * s) / dt
-    return out.reshape(-1)
+    return HandSpline(plan, travel_height, grasp_height).at(t)
 
 
 class Interpolator(LeafSystem):
@@ -122,6 +143,7 @@ class Interpolator(LeafSystem):
         self._n_objects = n_objects
         self._grasp_height = grasp_height
         self._travel_height = travel_height
+        self._last: HandSpline | None = None  # a cache only: outputs depend on (t, plan) alone
         self._plan = self.DeclareAbstractInputPort(
             "plan", AbstractValue.Make(empty_plan(n_objects))
         )
@@ -141,20 +163,21 @@ class Interpolator(LeafSystem):
     def get_grasp_command_output_port(self):
         return self._grasp_command
 
-    def _checked_plan(self, context) -> TimedTrajectory:
+    def _spline(self, context) -> HandSpline:
+        """The spline of the plan in force; built and checked once per plan (the planner's
+        output holds the same object until the next replan)."""
         plan = self._plan.Eval(context)
-        if not isinstance(plan, TimedTrajectory):
-            raise TypeError(f"Interpolator.plan: expected a TimedTrajectory, got {type(plan)}")
-        n = plan.trajectory.grasp.shape[2]
-        if n != self._n_objects:
-            raise ValueError(f"Interpolator.plan: {n} objects, expected {self._n_objects}")
-        return plan
+        if self._last is None or self._last.plan is not plan:
+            if not isinstance(plan, TimedTrajectory):
+                raise TypeError(f"Interpolator.plan: expected a TimedTrajectory, got {type(plan)}")
+            n = plan.trajectory.grasp.shape[2]
+            if n != self._n_objects:
+                raise ValueError(f"Interpolator.plan: {n} objects, expected {self._n_objects}")
+            self._last = HandSpline(plan, self._travel_height, self._grasp_height)
+        return self._last
 
     def _calc_hand_reference(self, context, output):
-        plan = self._checked_plan(context)
-        output.SetFromVector(
-            sample_hands(plan, context.get_time(), self._travel_height, self._grasp_height)
-        )
+        output.SetFromVector(self._spline(context).at(context.get_time()))
 
     def _calc_grasp_command(self, context, output):
-        output.SetFromVector(sample_grasp(self._checked_plan(context), context.get_time()))
+        output.SetFromVector(sample_grasp(self._spline(context).plan, context.get_time()))
