@@ -6,15 +6,16 @@ gripper ↔ plant, state estimator), leaving the plan input and the measured sta
 (the planner, or a fixed plan in tests).
 
 Physics (docs/drake.md, measured): MultibodyPlant with the SAP discrete solver at ``time_step``,
-point contact. The table is a ``HalfSpace`` at z = 0; the objects are ``object_size`` boxes
-resting on it at their scenario positions. Table and objects share the Coulomb friction
-μ = ``scenario.table.friction`` (so the combined μ is exactly that), 0 in the scenarios: the
-gripper's viscous drag makes the planner's one-step slide (systems/gripper.py). The robot comes
-from ``models/dual_scara.sdf`` (the single source of its geometry and gains); the table, objects
-and goal patches are made here because their count, colours and friction come from the
-scenario. The arms' collision geometries collide with the other arm's only: contact between an
-arm and the table or the objects is filtered out here (the gripper holds objects by force, with
-the hand inside the object), within an arm by the model's filter groups.
+hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0 with rigid
+hydroelastic properties; the objects are ``object_size`` boxes with compliant hydroelastic
+properties, resting on it at their scenario positions. Table and objects share the Coulomb
+friction μ = ``scenario.table.friction`` (so the combined μ is exactly that), low by design: a
+released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`` (the single
+source of its geometry and gains); the table, objects and goal patches are made here because
+their count, colours and friction come from the scenario. The arms' collision geometries collide
+with the other arm's only: contact between an arm and the table or the objects is filtered out
+here (the gripper holds objects by force, with the hand inside the object), within an arm by
+the model's filter groups.
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
     AddContactMaterial,
+    AddRigidHydroelasticProperties,
     Box,
     CollisionFilterDeclaration,
     GeometryId,
@@ -54,6 +57,7 @@ from dualarm_mpc.systems.state_estimator import StateEstimator
 ARMS = ("right", "left")  # arm 1 (index 0) is the right arm, arm 2 (index 1) the left
 JOINTS = ("shoulder", "elbow", "z")  # canonical joint c = 3·i + m of arm i
 OBJECT_MASS = 0.1  # kg
+OBJECT_MODULUS = 1e7  # Pa, compliant hydroelastic modulus of the objects
 GOAL_COLOURS = {
     "red": (0.85, 0.15, 0.15),
     "green": (0.15, 0.65, 0.2),
@@ -100,9 +104,10 @@ class Station:
         return len(self.objects)
 
 
-def _object_proximity(mu: float) -> ProximityProperties:
+def _object_proximity(size: float, mu: float) -> ProximityProperties:
     props = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
+    AddCompliantHydroelasticProperties(size, OBJECT_MODULUS, props)
     return props
 
 
@@ -123,6 +128,7 @@ def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
     mu = scenario.table.friction
     props = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
+    AddRigidHydroelasticProperties(properties=props)
     plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "table", props)
     x0, x1, y0, y1 = _table_extent(scenario)
     thickness = 0.02
@@ -160,7 +166,7 @@ def _add_objects(
             RigidTransform(),
             box,
             "collision",
-            _object_proximity(scenario.table.friction),
+            _object_proximity(size, scenario.table.friction),
         )
         plant.RegisterVisualGeometry(
             body, RigidTransform(), box, "visual", np.append(goal_colour(o.goal), 1.0)
@@ -225,7 +231,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
     config = MultibodyPlantConfig(
         time_step=time_step,
         discrete_contact_approximation="sap",
-        contact_model="point",
+        contact_model="hydroelastic_with_fallback",
     )
     plant, scene_graph = AddMultibodyPlant(config, builder)
     parser = Parser(plant)
