@@ -6,9 +6,10 @@ gripper ↔ plant, state estimator), leaving the plan input and the measured sta
 (the planner, or a fixed plan in tests).
 
 Physics (docs/drake.md, measured): MultibodyPlant with the SAP discrete solver at ``time_step``,
-hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0 with rigid
-hydroelastic properties; the objects are ``object_size`` boxes with compliant hydroelastic
-properties, resting on it at their scenario positions. Table and objects share the Coulomb
+hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0; the
+objects are ``object_size`` boxes, resting on it at their scenario positions on four small
+spheres at their bottom corners (point contact, four points of support). The boxes themselves,
+compliant hydroelastic, touch each other but not the table. Table and objects share the Coulomb
 friction μ = ``scenario.table.friction`` (so the combined μ is exactly that), low by design: a
 released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`` (the single
 source of its geometry and gains); the table, objects and goal patches are made here because
@@ -26,7 +27,6 @@ import numpy as np
 from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
     AddContactMaterial,
-    AddRigidHydroelasticProperties,
     Box,
     CollisionFilterDeclaration,
     GeometryId,
@@ -35,6 +35,7 @@ from pydrake.geometry import (
     ProximityProperties,
     Role,
     SceneGraph,
+    Sphere,
 )
 from pydrake.math import RigidTransform
 from pydrake.multibody.parsing import Parser
@@ -58,6 +59,9 @@ ARMS = ("right", "left")  # arm 1 (index 0) is the right arm, arm 2 (index 1) th
 JOINTS = ("shoulder", "elbow", "z")  # canonical joint c = 3·i + m of arm i
 OBJECT_MASS = 0.1  # kg
 OBJECT_MODULUS = 1e7  # Pa, compliant hydroelastic modulus of the objects
+# m: the spheres an object stands on. Point contact of a box on the table is one point, and a
+# pushed box sank 6-8 mm into it; hydroelastic box-table contact cost 1.4x the physics of a step.
+SUPPORT_RADIUS = 0.002
 GOAL_COLOURS = {
     "red": (0.85, 0.15, 0.15),
     "green": (0.15, 0.65, 0.2),
@@ -104,9 +108,14 @@ class Station:
         return len(self.objects)
 
 
-def _object_proximity(size: float, mu: float) -> ProximityProperties:
+def _point_contact(mu: float) -> ProximityProperties:
     props = ProximityProperties()
     AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
+    return props
+
+
+def _object_proximity(size: float, mu: float) -> ProximityProperties:
+    props = _point_contact(mu)
     AddCompliantHydroelasticProperties(size, OBJECT_MODULUS, props)
     return props
 
@@ -123,13 +132,11 @@ def _table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
     return [min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin]
 
 
-def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
+def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> GeometryId:
+    """The table (its collision geometry is returned) and the goal patches drawn on it."""
     world = plant.world_body()
-    mu = scenario.table.friction
-    props = ProximityProperties()
-    AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
-    AddRigidHydroelasticProperties(properties=props)
-    plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "table", props)
+    table = plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "table",
+                                            _point_contact(scenario.table.friction))
     x0, x1, y0, y1 = _table_extent(scenario)
     thickness = 0.02
     plant.RegisterVisualGeometry(
@@ -148,26 +155,30 @@ def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> None:
             f"goal_{name}",
             np.append(0.6 * rgb + 0.4, 1.0),
         )
+    return table
 
 
 def _add_objects(
     plant: MultibodyPlant, scenario: Scenario
-) -> tuple[tuple[ModelInstanceIndex, ...], tuple[RigidBody, ...]]:
+) -> tuple[tuple[ModelInstanceIndex, ...], tuple[RigidBody, ...], tuple[GeometryId, ...]]:
+    """The objects: their model instances, bodies and box collision geometries."""
     size = scenario.table.object_size
-    instances, bodies = [], []
+    support = _point_contact(scenario.table.friction)
+    corner = size / 2 - SUPPORT_RADIUS
+    instances, bodies, boxes = [], [], []
     for o in scenario.task.objects:
         instance = plant.AddModelInstance(o.name)
         body = plant.AddRigidBody(
             o.name, instance, SpatialInertia.SolidBoxWithMass(OBJECT_MASS, size, size, size)
         )
         box = Box(size, size, size)
-        plant.RegisterCollisionGeometry(
-            body,
-            RigidTransform(),
-            box,
-            "collision",
-            _object_proximity(size, scenario.table.friction),
-        )
+        boxes.append(plant.RegisterCollisionGeometry(
+            body, RigidTransform(), box, "collision",
+            _object_proximity(size, scenario.table.friction)))
+        for k, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
+            plant.RegisterCollisionGeometry(
+                body, RigidTransform([sx * corner, sy * corner, -corner]),
+                Sphere(SUPPORT_RADIUS), f"support_{k}", support)
         plant.RegisterVisualGeometry(
             body, RigidTransform(), box, "visual", np.append(goal_colour(o.goal), 1.0)
         )
@@ -176,7 +187,7 @@ def _add_objects(
         )
         instances.append(instance)
         bodies.append(body)
-    return tuple(instances), tuple(bodies)
+    return tuple(instances), tuple(bodies), tuple(boxes)
 
 
 def _arm_geometry(plant: MultibodyPlant, joints) -> tuple[np.ndarray, tuple[float, float]]:
@@ -237,8 +248,10 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
     parser = Parser(plant)
     parser.package_map().AddMap(package_map())
     (robot,) = parser.AddModels(url=ROBOT_URL)
-    _add_table_and_goals(plant, scenario)
-    object_instances, objects = _add_objects(plant, scenario)
+    table = _add_table_and_goals(plant, scenario)
+    object_instances, objects, boxes = _add_objects(plant, scenario)
+    scene_graph.collision_filter_manager().Apply(  # the objects stand on their spheres
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(table), GeometrySet(list(boxes))))
 
     joints = tuple(
         tuple(plant.GetJointByName(f"{arm}_{name}", robot) for name in JOINTS) for arm in ARMS

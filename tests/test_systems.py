@@ -182,7 +182,7 @@ def test_the_arms_collide_with_each_other_only():
                    for arm in ("right", "left"))
     assert len(right) == len(left) == 7  # column, 2 beams, 2 hubs, tip, quill
     world = collision_geometries(station, [station.plant.world_body(), *station.objects])
-    assert len(world) == 2  # the table and the object
+    assert len(world) == 6  # the table; the object's box and the four spheres it stands on
     for arm in (right, left):
         assert all(inspector.CollisionFiltered(a, b) for a in arm for b in arm if a != b)
         assert all(inspector.CollisionFiltered(a, w) for a in arm for w in world)
