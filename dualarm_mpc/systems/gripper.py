@@ -104,17 +104,19 @@ class Gripper(LeafSystem):
         self._height_tolerance = height_tolerance
         self._k = stiffness
         masses = np.array([b.default_mass() for b in object_bodies])
-        self._c = 2.0 * damping_ratio * np.sqrt(stiffness * masses)
-        self._drag = np.zeros(len(masses)) if slide_time_constant is None else (
-            masses / slide_time_constant)
-        self._stop = masses / update_period
+        # Per-object coefficients as floats (the forces are computed in Python floats); no drag
+        # list without a slide time constant.
+        self._c = (2.0 * damping_ratio * np.sqrt(stiffness * masses)).tolist()
+        self._drag = None if slide_time_constant is None else (
+            masses / slide_time_constant).tolist()
+        self._stop = (masses / update_period).tolist()
         yaw_inertia = np.array(
             [
                 b.default_spatial_inertia().CalcRotationalInertia().get_moments()[2]
                 for b in object_bodies
             ]
         )
-        self._c_yaw = yaw_inertia / yaw_time_constant
+        self._c_yaw = (yaw_inertia / yaw_time_constant).tolist()
 
         # The applied forces, their F_Bq_W set at each evaluation: the drag on each object, and
         # the spring-damper of each pair (i, j) on its object and on its hand.
@@ -202,7 +204,7 @@ class Gripper(LeafSystem):
         pairs = np.flatnonzero(x[: 2 * self._n]).tolist()
         held = {pair % self._n for pair in pairs}
         forces = []
-        if self._drag.any() and len(held) < self._n:
+        if self._drag is not None and len(held) < self._n:
             velocities = self._body_velocities.Eval(context)
             for j, obj in enumerate(self._objects):
                 if j in held:
