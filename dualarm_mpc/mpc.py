@@ -17,6 +17,9 @@ from the measured state (Algorithm 1, one step at a time):
   plan in force. While the robot waits at rest with no plan left (the first replan of a step),
   the search goes on over the next periods and its plan starts when it ends ("searching"); while
   the robot moves, the late search is stopped ("over_budget") and the next period plans afresh;
+* a replan from exactly the state the plan in force reaches now, when that plan was proven
+  optimal for the same step and goals, keeps it without a search ("kept"): by the principle of
+  optimality its rest is the replan's optimum (:meth:`Replanner._on_proven_plan`);
 * a solver time-out, an infeasible horizon or any error keeps the previous plan; every replan
   returns its record (:class:`Replan`: wall time, status, cost). Nothing raises.
 
@@ -37,13 +40,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import StepResult, solver_options
-from dualarm_mpc.mld import REST_SPEED, Model, Rect, State, at_rest, in_goal, reachability
+from dualarm_mpc.mld import (
+    POSITION_TOL,
+    REST_SPEED,
+    Model,
+    Rect,
+    State,
+    at_rest,
+    in_goal,
+    reachability,
+)
 from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.sequential import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.solver import Interrupt, SolveOptions, Status
-from dualarm_mpc.spec import Specification, rule_formulas, specification
+from dualarm_mpc.spec import RULE_TEXT, Specification, rule_formulas, specification
+from dualarm_mpc.verify import atom_trace
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +70,8 @@ KEPT = 1e-3  # m: a plan that moves an object less than this to its end leaves i
 # of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
 BUDGET_SHARE = 0.4
 SEARCHING = "over budget: the robot waits at rest while the search goes on"
+ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
+_ON_GRID = 1e-6  # of a step: a replan at the plan's step k exactly
 
 # solve(scenario, state, spec, T, options, start=...) -> StepResult: one horizon's solve.
 Solve = Callable[..., StepResult]
@@ -114,6 +130,8 @@ class MpcState:
     grasp_start: tuple[tuple[int, ...], np.ndarray] | None = None
     delivered_time: tuple[float | None, ...] = ()
     search: Search | None = None  # a search carried over (the robot waits at rest meanwhile)
+    # What the plan in force was proven optimal for (:func:`_step_key`), or None.
+    proven: tuple | None = None
 
 
 class Replanner:
@@ -132,6 +150,9 @@ class Replanner:
         self._budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
         self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
         self._rules = rule_formulas(scenario)
+        # The paper's rules look at most two steps ahead, which the model's state fixes (see
+        # _on_proven_plan); a user rule may look anywhere, so with one every replan searches.
+        self._keep_proven = all(name in RULE_TEXT for name, _ in self._rules)
 
     def initial_state(self) -> MpcState:
         sc = self._scenario
@@ -178,6 +199,10 @@ class Replanner:
         if not isinstance(prepared, _Job):
             return prepared
         job = prepared
+        if self._on_proven_plan(t, s, job):
+            previous, grasp = s.grasp_start
+            return _record(s, t, wall0, "kept", note=ON_PROVEN_PLAN,
+                           grasp_start=(previous, grasp[1:]), **job.changes)
         future = self._worker.submit(self._solve, job)
         if _wait(future, self._budget_s):
             return self._adopt(s, job, future.result(), t, wall0)
@@ -205,11 +230,11 @@ class Replanner:
         if not remaining and lost.any():
             names = ", ".join(sc.task.objects[j].name for j in np.flatnonzero(lost))
             return _record(s, t, wall0, "stuck", plan=_hold(t, sc.robot.dt, state), step_objects=(),
-                           delivered_time=delivered_time,
+                           delivered_time=delivered_time, proven=None,
                            note=f"{names} can no longer reach the goal")
         if not remaining:
             return _record(s, t, wall0, "done", plan=_hold(t, sc.robot.dt, state), step_objects=(),
-                           delivered_time=delivered_time)
+                           delivered_time=delivered_time, proven=None)
         new_step = (not s.step_objects or n_done >= s.step_target
                     or not set(s.step_objects) & set(remaining))
         if new_step:
@@ -265,7 +290,38 @@ class Replanner:
         plan = TimedTrajectory(t, sc.robot.dt, traj)
         return _record(s, t, wall0, res.status.value, res, plan=plan,
                        horizon_end=t + res.horizon * sc.robot.dt,
-                       grasp_start=(tuple(objects), res.trajectory.grasp), **job.changes)
+                       grasp_start=(tuple(objects), res.trajectory.grasp),
+                       proven=_step_key(job) if res.status is Status.OPTIMAL else None,
+                       **job.changes)
+
+    def _on_proven_plan(self, t: float, s: MpcState, job: _Job) -> bool:
+        """Whether the plan in force, from its step k reached at ``t`` on, is the optimum of
+        ``job`` (Bellman's principle of optimality), so that no search is needed.
+
+        It holds when that plan was proven optimal, at the shortest horizon, for the same
+        objects, m_o and goals, and the replan starts from exactly the plan's state at k (the
+        committed state snaps to it while the robot tracks the plan). The model is Markov in
+        (x, η): a plan from x(k) with η(k) fixed, prefixed with the plan's steps 0..k−1, is a
+        plan from the start, so a cheaper or shorter one from x(k) would have made the plan in
+        force neither optimal nor shortest. Its rules hold on the prefix too: the paper's rules
+        look at most two steps ahead (no-throw's ``WX WX θ``), and θ one step after k is fixed
+        by x(k) (p(k+1) = p(k) + Δt·v(k)). The task must still hold on the rest (◇θ may have
+        held only before k): checked by the evaluator on the rest of the plan."""
+        if not self._keep_proven or s.proven is None or s.proven != _step_key(job):
+            return False
+        traj = s.plan.trajectory
+        k, within = step_at(s.plan, t)
+        if within > _ON_GRID or not 1 <= k < traj.steps:
+            return False
+        x, objects = job.state, list(job.spec.objects)
+        pairs = [(x.hand_pos, traj.hand_pos[k]), (x.hand_vel, traj.hand_vel[k]),
+                 (x.object_pos[objects], traj.object_pos[k][objects]),
+                 (x.object_vel[objects], traj.object_vel[k][objects]),
+                 (x.grasp[:, objects], traj.grasp[k][:, objects])]
+        if any(np.abs(a - b).max(initial=0) > POSITION_TOL for a, b in pairs):
+            return False
+        holds = atom_trace(job.scenario, traj, k, traj.steps)
+        return evaluate(job.spec.task(), holds, traj.steps - k)
 
     def _still(self, job: _Job, m: Measured) -> bool:
         """Whether the robot and the objects still rest where the search carried over started."""
@@ -346,6 +402,12 @@ def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | 
                horizon=None if res is None else res.horizon, objects=new.step_objects,
                delivered=sum(d is not None for d in new.delivered_time), note=note)
     return new, r
+
+
+def _step_key(job: _Job) -> tuple:
+    """What a plan is optimal for: the step's objects, m_o and the goals."""
+    goals = tuple(sorted((name, tuple(box)) for name, box in job.scenario.task.goals.items()))
+    return job.spec.objects, job.spec.m_o, goals
 
 
 def _abandon(s: MpcState) -> None:

@@ -7,11 +7,15 @@ import dataclasses
 import threading
 
 import numpy as np
+import pytest
+from scenes import two_objects
 
-from dualarm_mpc.mld import REST_SPEED, in_goal
+from dualarm_mpc.mld import REST_SPEED, State, in_goal
 from dualarm_mpc.mpc import SEARCHING, STILL_SPEED, Measured, MpcState, Replanner
 from dualarm_mpc.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
 from dualarm_mpc.sequential import solve_horizon
+from dualarm_mpc.solver import Status
+from dualarm_mpc.spec import specification
 
 GOALS = {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]}
 
@@ -261,3 +265,91 @@ def test_hands_measured_a_hair_inside_the_hand_gap_are_planned_from_eq_16() -> N
     start = s.plan.trajectory.hand_pos[0]
     assert start[0, 0] - start[1, 0] >= gap - 1e-9
     assert np.abs(start - close.hand_pos).max() < 1e-5  # moved apart by the deficit alone
+
+
+# --- a replan on a proven plan keeps it (the principle of optimality) ---------------------------
+
+
+def on_plan(s: MpcState, k: int) -> Measured:
+    """What the robot measures when it is exactly where the plan in force puts it at step k."""
+    x = State.at(s.plan.trajectory, k)
+    return Measured(hand_pos=x.hand_pos.copy(), hand_vel=x.hand_vel.copy(),
+                    object_pos=x.object_pos.copy(), object_vel=x.object_vel.copy(),
+                    grasp=x.grasp.astype(float))
+
+
+def counting_solves(calls: list):
+    def solve(*args, **kwargs):
+        calls.append(args[3])  # the horizon
+        return solve_horizon(*args, **kwargs)
+
+    return solve
+
+
+@pytest.mark.parametrize("rule", [1, 2])
+def test_a_replan_on_the_proven_plan_keeps_it_without_a_search(rule: int) -> None:
+    sc = scenario(rule=rule)
+    calls: list = []
+    core = Replanner(sc, solve=counting_solves(calls))
+    s1, r1 = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
+    assert r1.status == "optimal" and s1.proven is not None
+    searched = len(calls)
+    dt = sc.robot.dt
+    s2, r2 = core.step(dt, s1, on_plan(s1, 1), sc.task.goals)
+    s3, r3 = core.step(2 * dt, s2, on_plan(s1, 2), sc.task.goals)
+    core.close(s3)
+    assert (r2.status, r3.status) == ("kept", "kept") and len(calls) == searched
+    assert s3.plan is s1.plan and s3.proven == s1.proven and s3.horizon_end == s1.horizon_end
+    # The next search's MIP start stays aligned: two periods on, two rows fewer.
+    assert np.array_equal(s3.grasp_start[1], s1.grasp_start[1][2:])
+
+
+@pytest.mark.parametrize("change", ["off the plan", "goal moved", "user rule", "not proven"])
+def test_a_replan_searches_unless_the_plan_in_force_answers_it(change: str) -> None:
+    rules = ["G !(eta[2,1])"] if change == "user rule" else []
+    sc = scenario(rules=rules)
+    calls: list = []
+    core = Replanner(sc, solve=counting_solves(calls))
+    s1, _ = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
+    measured, goals = on_plan(s1, 1), sc.task.goals
+    if change == "off the plan":  # beyond the snap: a knock
+        measured = dataclasses.replace(measured, hand_pos=measured.hand_pos + [[0.05, 0.0]])
+    elif change == "goal moved":
+        goals = {**goals, "red": [0.2, 0.55, 0.65, 0.95]}
+    elif change == "not proven":
+        s1 = dataclasses.replace(s1, proven=None)
+    searched = len(calls)
+    s2, r2 = core.step(sc.robot.dt, s1, measured, goals)
+    core.close(s2)
+    assert r2.status != "kept" and len(calls) > searched
+
+
+def tail_cost(traj, k: int) -> float:
+    return float(np.abs(traj.force[k:]).sum())
+
+
+@pytest.mark.parametrize("m_o", [1, 2])
+@pytest.mark.parametrize(("rule", "delivery"), [(1, "reach"), (1, "rest"), (2, "reach"),
+                                                (2, "rest")])
+def test_the_rest_of_an_optimal_plan_is_the_optimum_from_where_it_is(rule: int, delivery: str,
+                                                                     m_o: int) -> None:
+    """The principle a kept replan relies on, checked on the model and the paper's rules: from
+    the state at every step k of the optimal plan of the shortest horizon T (η(k) committed),
+    the shortest horizon is T − k and the optimum the plan's own rest — among them steps while
+    an object is carried and the step after a release, where no-throw's θ two steps on and the
+    one-step slide look past k."""
+    sc = apply_overrides(two_objects(), {"rule": rule, "delivery": delivery, "m_o": m_o})
+    spec = specification(sc, [0, 1])
+    start = State.initial(sc)
+    res = next(r for T in range(1, sc.solver.max_horizon + 1)
+               if (r := solve_horizon(sc, start, spec, T)).status is not Status.INFEASIBLE)
+    assert res.status is Status.OPTIMAL
+    traj, T = res.trajectory, res.horizon
+    released = [k + 1 for k in range(T - 1) if (traj.grasp[k] & ~traj.grasp[k + 1]).any()]
+    assert released or rule == 1  # under rule 2 the cheapest plans throw
+    for k in range(1, T):
+        x = State.at(traj, k)
+        assert solve_horizon(sc, x, spec, T - k - 1).status is Status.INFEASIBLE, k
+        rest = solve_horizon(sc, x, spec, T - k)
+        assert rest.status is Status.OPTIMAL, k
+        assert rest.cost == pytest.approx(tail_cost(traj, k), abs=2e-4 * res.cost), k
