@@ -52,7 +52,7 @@ from dualarm_mpc.resources import ROBOT_URL, package_map
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
 from dualarm_mpc.systems.gripper import Gripper
-from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator
+from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator, Limits
 from dualarm_mpc.systems.state_estimator import StateEstimator
 
 ARMS = ("right", "left")  # arm 1 (index 0) is the right arm, arm 2 (index 1) the left
@@ -97,6 +97,8 @@ class Station:
     object_size: float
     grasp_height: float  # hand height when it holds an object: the object's centre
     travel_height: float  # hand height when it holds nothing
+    hand_range: tuple[float, float, float, float]  # the planner's workspace: [x0, x1, y0, y1]
+    hand_gap: float  # eq. (16): x_arm2 + hand_gap ≤ x_arm1
     time_step: float
     slide_time_constant: float | None  # the table's viscous drag on sliding objects (Gripper)
     table: list[float]  # the table top drawn: [x0, x1, y0, y1]
@@ -297,6 +299,8 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         object_size=scenario.table.object_size,
         grasp_height=scenario.table.object_size / 2,
         travel_height=travel,
+        hand_range=tuple(scenario.robot.workspace),
+        hand_gap=scenario.robot.hand_gap,
         time_step=time_step,
         slide_time_constant=scenario.table.slide_time_constant,
         table=_table_extent(scenario),
@@ -335,7 +339,8 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
     plant = station.plant
     interpolator = builder.AddNamedSystem(
         "interpolator",
-        Interpolator(station.n_objects, station.grasp_height, station.travel_height),
+        Interpolator(station.n_objects, station.grasp_height, station.travel_height,
+                     limits=Limits(station.hand_range, station.hand_gap)),
     )
     controller = builder.AddNamedSystem(
         "controller",

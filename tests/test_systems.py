@@ -27,6 +27,7 @@ from dualarm_mpc.systems.gripper import REST_NOISE, Gripper
 from dualarm_mpc.systems.interpolator import (
     TRAVEL_HEIGHT,
     Interpolator,
+    Limits,
     empty_plan,
     node_velocities,
     sample_grasp,
@@ -351,6 +352,33 @@ def test_interpolator_releases_with_the_velocity_of_the_step_before():
     for t in (0.0, 1.0, 2.0):  # positions at the steps are the plan's
         ref = sample_hands(released, t, TRAVEL_HEIGHT, GRASP_HEIGHT).reshape(2, 6)
         np.testing.assert_allclose(ref[:, :2], released.trajectory.hand_pos[int(t)], atol=1e-12)
+
+
+def _turning_plan() -> TimedTrajectory:
+    """From a §V-C run: both hands go left along the hand range's edge (y = 0.9), 0.1 apart as
+    eq. (16) allows; at step 1 the right hand turns back at 0.34 m/s in x and down in y."""
+    hand_pos = np.array([[[-0.193, 0.9], [-0.293, 0.9]], [[-0.287, 0.9], [-0.387, 0.9]],
+                         [[-0.047, 0.66], [-0.471, 0.9]]])
+    hand_vel = np.array([[[-0.094, 0.0], [-0.094, 0.0]], [[0.24, -0.24], [-0.084, 0.0]],
+                         [[0.0, 0.0], [0.0, 0.0]]])
+    return TimedTrajectory(27.0, 1.0, Trajectory(hand_pos, hand_vel, np.zeros((2, 2, 2)),
+                                                 np.zeros((3, 0, 2)), np.zeros((3, 0, 2)),
+                                                 np.zeros((3, 2, 0), int)))
+
+
+def test_interpolator_keeps_the_reference_where_the_plan_keeps_the_hands():
+    plan, limits = _turning_plan(), Limits((-0.9, 0.9, 0.0, 0.9), 0.1)
+    times = np.linspace(27.0, 29.0, 201)
+    free = np.array([sample_hands(plan, t, 0.1, 0.025) for t in times]).reshape(-1, 2, 6)
+    kept = np.array([sample_hands(plan, t, 0.1, 0.025, limits) for t in times]).reshape(-1, 2, 6)
+    # the spline alone turns past the node: out of the range and 5 cm too close in x
+    assert free[:, 0, 1].max() > 0.93 and (free[:, 0, 0] - free[:, 1, 0]).min() < 0.055
+    assert kept[:, :, 1].max() <= 0.9 and (kept[:, 0, 0] - kept[:, 1, 0]).min() >= 0.1 - 1e-12
+    # where the gap holds the hands, they move together; at the nodes nothing changed
+    tight = np.isclose(kept[:, 0, 0] - kept[:, 1, 0], 0.1) & (free[:, 0, 0] - free[:, 1, 0] < 0.1)
+    assert tight.any() and np.allclose(kept[tight, 0, 3], kept[tight, 1, 3])
+    for k in (0, 100, 200):
+        np.testing.assert_allclose(kept[k], free[k], atol=1e-12)
 
 
 def test_interpolator_system_matches_the_sampler():

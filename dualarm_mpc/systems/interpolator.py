@@ -18,6 +18,16 @@ Release: at a step where a hand lets an object go, the spline's velocity is the 
 of the step before, the one the released object keeps in the plan's model (see
 :func:`node_velocities`), so the object leaves the hand as the planner predicted.
 
+Limits: the plan's model changes a hand's velocity at once at a step, a curve with a continuous
+velocity cannot, so where the velocity turns at a node the spline first passes it: by
+centimetres at §V-C's speeds, out of the hand range or closer to the other hand than eq. (16)
+allows (on a §V-C run, 5.2 cm in x where the nodes keep 10, the arms 2.3 cm apart). Given the
+hand range and eq. (16)'s gap (:class:`Limits`), the reference is kept where every node of a
+plan is: each hand inside the range (a component held at a bound stops there), and
+``x_1 − x_2 ≥ gap`` by moving both hands apart by half the shortfall each (along the range's
+edge when one is on it), both then at their mean x velocity, which keeps the gap. At the nodes
+nothing moves, so grasps and releases happen where and at the velocity the plan says.
+
 Grasp command: for ``t`` in ``[t_k, t_{k+1})`` it is ``grasp[k]``; after the last step K it stays
 ``grasp[K]``, before ``t0`` it is ``grasp[0]``. Outside ``[t0, t_K]`` the hand holds the first or
 last planned position at zero velocity (the height profile still completes a rise after a release
@@ -25,6 +35,8 @@ at the last step).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -36,6 +48,35 @@ from dualarm_mpc.plan import step_at as _step
 TRAVEL_HEIGHT = 0.10  # hand height above the table when it holds nothing (m)
 
 __all__ = ["empty_plan", "sample_grasp"]  # in plan.py: the MPC core needs them without Drake
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What the planner keeps the hands in at every step: the hand range ``[x0, x1, y0, y1]``
+    and eq. (16)'s ``gap`` (x of arm 2 + gap ≤ x of arm 1)."""
+
+    hand_range: tuple[float, float, float, float]
+    gap: float
+
+    def keep(self, out: list[float]) -> None:
+        """Moves the reference ``out`` (per arm [x, y, z, vx, vy, vz]) inside, in place."""
+        for i in (0, 6):
+            for a in (0, 1):
+                lo, hi = self.hand_range[2 * a], self.hand_range[2 * a + 1]
+                if not lo <= out[i + a] <= hi:
+                    out[i + a] = min(max(out[i + a], lo), hi)
+                    out[i + 3 + a] = 0.0
+        short = self.gap - (out[0] - out[6])
+        if short > 0:
+            x1, x2, v = out[0] + short / 2, out[6] - short / 2, (out[3] + out[9]) / 2
+            lo, hi = self.hand_range[0], self.hand_range[1]
+            if x1 > hi:
+                x1, x2, v = hi, hi - self.gap, 0.0
+            elif x2 < lo:
+                x1, x2, v = lo + self.gap, lo, 0.0
+            out[0], out[6], out[3], out[9] = x1, x2, v, v
+
+
 def node_velocities(traj: Trajectory, k: int) -> np.ndarray:
     """The hands' velocities (2, 2) the spline passes through at step k.
 
@@ -58,9 +99,11 @@ class HandSpline:
     """A plan's spline, with its nodes computed once: the positions, :func:`node_velocities` and
     node heights of every step (sampling it runs at every 2 ms plant step, a plan lasts a Δt)."""
 
-    def __init__(self, plan: TimedTrajectory, travel_height: float, grasp_height: float):
+    def __init__(self, plan: TimedTrajectory, travel_height: float, grasp_height: float,
+                 limits: Limits | None = None):
         traj = plan.trajectory
         self.plan = plan
+        self._limits = limits
         self._last = len(traj.hand_pos) - 1
         # Nested lists of floats: sampling is scalar arithmetic, cheaper than small arrays.
         self._pos = np.asarray(traj.hand_pos, dtype=float).tolist()
@@ -99,14 +142,17 @@ class HandSpline:
             for i in range(2):
                 out += [p[i][0], p[i][1], z0[i] + (z1[i] - z0[i]) * rise,
                         0.0, 0.0, (z1[i] - z0[i]) * rate]
+        if self._limits is not None:
+            self._limits.keep(out)
         return np.array(out)
 
 
 def sample_hands(
-    plan: TimedTrajectory, t: float, travel_height: float, grasp_height: float
+    plan: TimedTrajectory, t: float, travel_height: float, grasp_height: float,
+    limits: Limits | None = None,
 ) -> np.ndarray:
     """The hand reference at time t: per arm [x, y, z, vx, vy, vz] (length 12)."""
-    return HandSpline(plan, travel_height, grasp_height).at(t)
+    return HandSpline(plan, travel_height, grasp_height, limits).at(t)
 
 
 class Interpolator(LeafSystem):
@@ -132,6 +178,7 @@ class Interpolator(LeafSystem):
         n_objects: int,
         grasp_height: float,
         travel_height: float = TRAVEL_HEIGHT,
+        limits: Limits | None = None,
     ):
         super().__init__()
         if n_objects < 0:
@@ -143,6 +190,7 @@ class Interpolator(LeafSystem):
         self._n_objects = n_objects
         self._grasp_height = grasp_height
         self._travel_height = travel_height
+        self._limits = limits
         self._last: HandSpline | None = None  # a cache only: outputs depend on (t, plan) alone
         self._plan = self.DeclareAbstractInputPort(
             "plan", AbstractValue.Make(empty_plan(n_objects))
@@ -173,7 +221,7 @@ class Interpolator(LeafSystem):
             n = plan.trajectory.grasp.shape[2]
             if n != self._n_objects:
                 raise ValueError(f"Interpolator.plan: {n} objects, expected {self._n_objects}")
-            self._last = HandSpline(plan, self._travel_height, self._grasp_height)
+            self._last = HandSpline(plan, self._travel_height, self._grasp_height, self._limits)
         return self._last
 
     def _calc_hand_reference(self, context, output):
