@@ -15,7 +15,9 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
   counts of the detail table. The simulation blocks while the planner runs, so on a robot each
   replan must finish within Δt;
 * **real-time factor** — simulated time / wall time of the whole run (solves included); above 1
-  is faster than real time.
+  is faster than real time;
+* **arms apart** — the least distance between the two arms' collision geometries over the run
+  (the summary's ``min_arm_clearance_m``, by SceneGraph every 20 ms), in cm.
 
 Run it (from the repository root)::
 
@@ -170,6 +172,7 @@ def summary_record(summary) -> dict:
         sim_time_s=summary.sim_time_s,
         wall_time_s=summary.wall_time_s,
         realtime_factor=summary.realtime_factor,
+        min_arm_clearance_m=summary.min_arm_clearance_m,
         replans=len(summary.replans),
         solving_replans=len(solves),
         replan_wall_s=percentiles([r["wall_s"] for r in solves]),
@@ -219,6 +222,8 @@ def summarize(records: list[dict], rule: int) -> dict:
         "replans_without_plan": sum(r["replans_without_plan"] for r in ok),
         "replans_over_dt": sum(r["replans_over_dt"] for r in ok),
         "realtime_factor": sim / wall if wall > 0 else None,
+        "min_arm_clearance_m": min((r["min_arm_clearance_m"] for r in ok
+                                    if r.get("min_arm_clearance_m") is not None), default=None),
     }
 
 
@@ -228,20 +233,26 @@ def walls(w: dict) -> str:
 
 def main_table(records: list[dict], summary: list[dict]) -> str:
     header = ["rule", "seed", "objects delivered (resting in goal) / 10", "sim time (s)",
-              "replans", "wall per replan median / p95 / max (s)", "real-time factor"]
+              "replans", "wall per replan median / p95 / max (s)", "real-time factor",
+              "arms apart (cm)"]
     rows = []
     for s in summary:
         for r in (r for r in records if r["rule"] == s["rule"]):
             if r["status"] != "ok":
-                rows.append([str(r["rule"]), str(r["seed"]), "error", "—", "—", "—", "—"])
+                rows.append([str(r["rule"]), str(r["seed"]), "error", "—", "—", "—", "—", "—"])
                 continue
             rows.append([str(r["rule"]), str(r["seed"]), f"{r['delivered']}/{r['n_objects']}",
                          f"{r['sim_time_s']:.0f}", str(r["replans"]), walls(r["replan_wall_s"]),
-                         f"{r['realtime_factor']:.2f}"])
+                         f"{r['realtime_factor']:.2f}", centimetres(r.get("min_arm_clearance_m"))])
         rows.append([f"**{s['rule']}**", f"**all ({s['ok']}/{s['runs']} runs)**",
                      f"**{s['delivered']}/{s['objects']}**", fmt(s["mean_sim_time_s"], ".0f"),
-                     str(s["replans"]), walls(s["replan_wall_s"]), fmt(s["realtime_factor"])])
+                     str(s["replans"]), walls(s["replan_wall_s"]), fmt(s["realtime_factor"]),
+                     centimetres(s["min_arm_clearance_m"])])
     return table(header, rows)
+
+
+def centimetres(metres: float | None) -> str:
+    return "—" if metres is None else f"{100 * metres:.1f}"
 
 
 def detail_table(records: list[dict]) -> str:
