@@ -351,6 +351,7 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
             station.actuator_order,
             plant.num_multibody_states(),
             station.elbow_signs,
+            hand_gap=station.hand_gap,
         ),
     )
     gripper = builder.AddNamedSystem(

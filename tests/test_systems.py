@@ -17,6 +17,7 @@ from dualarm_mpc.scenario import ObjectSpec, Scenario, Table, Task, load_scenari
 from dualarm_mpc.station import AddControlStack, AddStation, Station, goal_colour
 from dualarm_mpc.systems.clearance import ArmClearance
 from dualarm_mpc.systems.controller import (
+    GAP_SLACK,
     Controller,
     scara_fk,
     scara_ik,
@@ -420,6 +421,31 @@ def test_controller_output_reaches_the_reference_and_unwraps():
         J = scara_jacobian(q[3 * i : 3 * i + 2], lengths)
         np.testing.assert_allclose(J @ v[3 * i : 3 * i + 2], ref[6 * i + 3 : 6 * i + 5], atol=1e-5)
     assert q[4] < 0 < q[1]  # right elbow sign +1, left −1
+
+
+def test_controller_keeps_each_hand_off_where_the_other_is_measured():
+    """Measured on §V-D: the left hand blocked at x = 0.276 (a carried object against another),
+    the right hand's reference 0.345, eq. (16)'s gap 0.1. The guard holds the right hand at
+    0.276 + 0.1 − GAP_SLACK and leaves references a few millimetres off alone."""
+    bases, lengths = [[0.3, -0.8], [-0.3, -0.8]], (0.9, 1.3)
+    system = Controller(bases, lengths, range(6), range(6), 12, hand_gap=0.1)
+    free = Controller(bases, lengths, range(6), range(6), 12)
+
+    def measured_at(left_x: float) -> np.ndarray:
+        q = np.zeros(6)
+        q[0:2] = scara_ik((0.45, 0.62), bases[0], lengths, 1)
+        q[3:5] = scara_ik((left_x, 0.62), bases[1], lengths, -1)
+        return q
+
+    ref = np.array([0.345, 0.616, 0.05, -0.2, -0.1, 0.0, 0.25, 0.642, 0.05, -0.2, 0.1, 0.0])
+    out = system.joint_targets(ref, measured_at(0.276))
+    hand = scara_fk(out[0:2], bases[0], lengths)
+    assert hand[0] == pytest.approx(0.276 + 0.1 - GAP_SLACK) and hand[1] == pytest.approx(0.616)
+    np.testing.assert_allclose(scara_jacobian(out[0:2], lengths) @ out[6:8], [0, -0.1], atol=1e-6)
+    np.testing.assert_allclose(out[3:6], free.joint_targets(ref, measured_at(0.276))[3:6])
+    # the left hand 2 mm behind its reference, as in normal tracking: nothing changes
+    np.testing.assert_allclose(system.joint_targets(ref, measured_at(0.252)),
+                               free.joint_targets(ref, measured_at(0.252)))
 
 
 # --- physics -----------------------------------------------------------------------------------

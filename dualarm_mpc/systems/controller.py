@@ -13,6 +13,14 @@ of the hands' range, so every hand lies beyond its base line and the elbows stay
 from each other (docs/drake.md, "Arms that keep clear"). A fixed sign keeps the joint path
 continuous; it never flips elbows.
 
+Gap guard: the references keep eq. (16) between the hands (the Interpolator's limits), but a
+hand can lag its reference, pushing a carried object against another one (objects touch each
+other on the plant, not in the model): measured on §V-D, the left hand held 2.5 cm behind while
+the right one came on, and the arms came 2.9 cm apart. Given eq. (16)'s gap, each hand's x
+reference is kept at least ``gap − GAP_SLACK`` from where the other hand is measured, at rest
+along x while the guard holds it; ``GAP_SLACK`` is above the millimetres the arms lag in normal
+tracking, so the guard acts only on such blocks.
+
 Joint velocities come from the Jacobian, inverted with a small damping near the singularities
 (arm stretched or folded), and clipped. The revolute angles are unwrapped to the
 measured ones (the nearest multiple of 2π), so a reference crossing atan2's branch cut does not
@@ -30,18 +38,19 @@ from pydrake.systems.framework import LeafSystem
 ELBOW_SIGNS = (1, -1)  # arm 1 (right), arm 2 (left): elbows point away from each other
 _DAMPING = 1e-3  # damped least squares near singularities (m)
 _MAX_JOINT_SPEED = 20.0  # rad/s clip of the reference joint speed
+GAP_SLACK = 0.01  # m: what the gap guard lets a hand's lag take off eq. (16)'s gap
 
 
 def scara_fk(q: Sequence[float], base: Sequence[float], lengths: Sequence[float]) -> np.ndarray:
     """The hand's in-plane position for joint angles ``q = (q1, q2)``."""
+    return np.array(_hand_xy(q[0], q[1], base, lengths))
+
+
+def _hand_xy(q1: float, q2: float, base: Sequence[float], lengths: Sequence[float]
+             ) -> tuple[float, float]:
     l1, l2 = lengths
-    q1, q2 = q[0], q[1]
-    return np.array(
-        [
-            base[0] + l1 * np.cos(q1) + l2 * np.cos(q1 + q2),
-            base[1] + l1 * np.sin(q1) + l2 * np.sin(q1 + q2),
-        ]
-    )
+    return (base[0] + l1 * math.cos(q1) + l2 * math.cos(q1 + q2),
+            base[1] + l1 * math.sin(q1) + l2 * math.sin(q1 + q2))
 
 
 def scara_ik(
@@ -126,8 +135,10 @@ class Controller(LeafSystem):
         actuator_order: Sequence[int],
         plant_state_size: int,
         elbow_signs: Sequence[int] = ELBOW_SIGNS,
+        hand_gap: float | None = None,
     ):
         super().__init__()
+        self._hand_gap = hand_gap
         self._bases = np.asarray(arm_bases, dtype=float).reshape(2, 2).tolist()
         self._lengths = tuple(float(x) for x in link_lengths)
         if len(self._lengths) != 2 or min(self._lengths) <= 0:
@@ -166,6 +177,8 @@ class Controller(LeafSystem):
         # Python floats, not numpy slices: this runs at every 2 ms plant step.
         ref = np.asarray(hand_reference, dtype=float).tolist()
         measured = np.asarray(q_measured, dtype=float).tolist()
+        if self._hand_gap is not None:
+            self._guard_gap(ref, measured)
         q, v = [], []
         for i in range(2):
             x, y, z, vx, vy, vz = ref[6 * i : 6 * i + 6]
@@ -175,6 +188,17 @@ class Controller(LeafSystem):
             q += [q1, q2, z]
             v += [w1, w2, vz]
         return np.array(q + v)
+
+    def _guard_gap(self, ref: list[float], measured: list[float]) -> None:
+        """Keeps each hand's x reference ``gap − GAP_SLACK`` from the other hand's measured x
+        (arm 1 right of arm 2, eq. 16), in place."""
+        x1, x2 = (_hand_xy(measured[3 * i], measured[3 * i + 1], self._bases[i],
+                           self._lengths)[0] for i in range(2))
+        gap = self._hand_gap - GAP_SLACK
+        if ref[0] < x2 + gap:
+            ref[0], ref[3] = x2 + gap, 0.0
+        if ref[6] > x1 - gap:
+            ref[6], ref[9] = x1 - gap, 0.0
 
     def _calc_desired_state(self, context, output):
         x = self._plant_state.Eval(context)
