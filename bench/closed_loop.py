@@ -252,7 +252,7 @@ def main_table(records: list[dict], summary: list[dict]) -> str:
 
 
 def centimetres(metres: float | None) -> str:
-    return "—" if metres is None else f"{100 * metres:.1f}"
+    return fmt(None if metres is None else 100 * metres, ".1f")
 
 
 def detail_table(records: list[dict]) -> str:
