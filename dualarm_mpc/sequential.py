@@ -8,7 +8,6 @@ until every object rests in its goal.
 from __future__ import annotations
 
 import dataclasses
-import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,8 +22,6 @@ from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, rule_formulas, specification
-
-log = logging.getLogger(__name__)
 
 # Seconds a step may go without a plan before the largest horizon is checked (plan_step): the
 # check costs up to CAP_CHECK_TIME_S, wasted when the step has a plan, so only a step that has
