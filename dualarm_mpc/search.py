@@ -219,6 +219,10 @@ class StepSearch:
         self._slice = np.inf  # the time a program may take (the feasibility pass's rounds)
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
         self._deliveries: list[tuple[tuple[int, ...], frozenset[int]]] | None = None
+        # ``auto``: relays are searched once the nodes without them have no plan (see
+        # handed_over_objects); the nodes the feasibility pass proved infeasible meanwhile.
+        self._relays = False
+        self._ruled: set[Node] = set()
         self._deadline = time.perf_counter() + self.options.time_limit_s
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
                                        self.horizon)
@@ -531,10 +535,21 @@ class StepSearch:
     # -- best-first ---------------------------------------------------------------------------
 
     def handed_over_objects(self) -> set[int]:
-        """The objects with hand-over labels: every one with ``always``; with ``auto`` those
-        that neither hand can deliver alone but both together can; none with ``never``."""
+        """The objects with hand-over labels: every one with ``always``; none with ``never``;
+        with ``auto`` those that neither hand can deliver alone but both together can, and,
+        once the horizon is known to have no plan without a relay (:meth:`feasible`), every
+        object a hand may put down outside its goal for the other to pick up."""
         if self.handover != "auto":
             return set(self.spec.objects) if self.handover == "always" else set()
+        return self._needed() | (self._relayable() if self._relays else set())
+
+    def _relayable(self) -> set[int]:
+        """The objects a relay can carry: those a hand may release outside their goal (not
+        under no-throw), to be picked up there by the other hand."""
+        return {j for j in self.spec.objects if self._local[j] not in self._no_throw}
+
+    def _needed(self) -> set[int]:
+        """The objects neither hand can deliver alone but both together can."""
         alone = list(self.spec.objects)
         for i in range(N_HANDS):  # an object one hand delivers needs no second probe
             self.fetch((("hand", i, (j,)), False) for j in alone)
@@ -580,7 +595,21 @@ class StepSearch:
         in the next round, which solves again only what ran out of time; the last round has
         all the time left. A node left undecided does not stop a round, so a node with a plan
         later in the order is still found; the horizon is infeasible only when every node is
-        proven so, as without rounds."""
+        proven so, as without rounds.
+
+        With ``auto`` hand-overs, a horizon without a plan among those nodes is searched again
+        with relays (:meth:`handed_over_objects`): a relay can make a horizon feasible that
+        is not without one, and the step's horizon is that of Algorithm 1 only if
+        "infeasible" covers every plan."""
+        if self._feasible_rounds():
+            return True
+        if self.stats.timed_out or self.handover != "auto" or self._relays \
+                or not self._relayable() - self._needed():
+            return self.stats.timed_out
+        self._relays = True
+        return self._feasible_rounds()
+
+    def _feasible_rounds(self) -> bool:
         self._slice = FIRST_SLICE * self.options.time_limit_s
         try:
             while True:
@@ -612,6 +641,8 @@ class StepSearch:
             if self._stopped():
                 self.stats.timed_out = True
                 break
+            if node in self._ruled:
+                continue
             if n == 1:  # past the first guess, most singles will be needed: all at once
                 self.fetch((("hand", i, (j,)), False)
                            for j in self.spec.objects for i in range(N_HANDS))
@@ -622,6 +653,7 @@ class StepSearch:
                 self.stats.timed_out = True
                 continue
             if not relaxed:
+                self._ruled.add(node)
                 continue
             witness = None if node.handed_over or node.free else self.compose(node, exact=False)
             if witness is None:
@@ -629,7 +661,9 @@ class StepSearch:
             if witness.status.has_solution:
                 self._witness = witness
                 return True
-            if witness.status is not Status.INFEASIBLE:
+            if witness.status is Status.INFEASIBLE:
+                self._ruled.add(node)
+            else:
                 self.stats.timed_out = True
         return False
 
@@ -664,8 +698,9 @@ class StepSearch:
 
     def ruled_out(self) -> bool:
         """Whether the relaxations alone prove that the horizon has no plan: every node has an
-        infeasible one. Stops at the first node that they cannot rule out (a cheap check: no
-        joint program is solved)."""
+        infeasible one, relays included. Stops at the first node that they cannot rule out (a
+        cheap check: no joint program is solved)."""
+        self._relays = True
         for node in self._probe_order():
             if self._relaxations_feasible(node) is not False:
                 return False

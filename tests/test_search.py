@@ -21,10 +21,10 @@ from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.ltl import FALSE, TRUE, Atom, parse
 from dualarm_mpc.mld import POSITION_TOL, Model, State, replay, violations
-from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.scenario import Scenario, load_scenario
 from dualarm_mpc.search import StepSearch, partial, search_step, untouchable
 from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import RULE_TEXT, expand, specification, survives_idling
+from dualarm_mpc.spec import RULE_TEXT, expand, rule_formulas, specification, survives_idling
 
 # --- partial evaluation and untouched objects ---------------------------------------------------
 
@@ -133,12 +133,12 @@ def random_scene(seed: int) -> Scenario:
     return scene(rule, rules, objects=objects, delivery=delivery, m_o=1 + seed % 2)
 
 
-def replayed_trace_satisfies(s: Scenario, spec, res) -> bool:
+def replayed_trace_satisfies(s: Scenario, spec, res, state: State | None = None) -> bool:
     """The independent check: replay through the model, evaluate the specification directly."""
     objects = list(spec.objects)
     model = Model.from_scenario(s, objects)
     traj = res.trajectory
-    local = State.initial(s).select(objects)
+    local = (state or State.initial(s)).select(objects)
     replayed = replay(model, local, traj.force, traj.grasp)
     if violations(model, replayed):
         return False
@@ -207,6 +207,33 @@ def test_search_returns_the_monolithic_optimum_delivering_three(seed: int) -> No
     assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
     assert replayed_trace_satisfies(s, spec, found)
     assert search_step(s, state, spec, mono.horizon - 1).status is Status.INFEASIBLE
+
+
+def relay_step():
+    """The third step of Table II's (2,5) rule 2, seed 2, its start rounded to 0.1 mm: both
+    hands at the goals, the objects low. At T = 11 each hand carries an object part of the
+    way, puts it down and picks up the one the other hand left (no-juggle (19) forbids only
+    the direct pass); without a relay the first plan is at T = 12."""
+    s = load_scenario("table1_vd", {"m_o": 2, "n_o": 5, "rule": 2, "seed": 2})
+    objects = [[-0.1192, -0.1008], [0.1571, -0.204], [-0.225, 0.65], [-0.156, -0.2224],
+               [-0.175, 0.85], [0.0311, -0.175], [0.225, 0.65], [0.175, 0.85],
+               [0.2337, 0.0915], [-0.0542, -0.1564]]
+    state = State(np.array([[0.2103, 0.8], [0.1103, 0.6]]), np.zeros((2, 2)),
+                  np.array(objects), np.zeros((10, 2)), np.zeros((2, 10), int))
+    return s, state, specification(s, [0, 3, 5, 8, 9], rules=rule_formulas(s))
+
+
+def test_the_default_search_finds_the_horizon_only_a_relay_makes_feasible() -> None:
+    s, state, spec = relay_step()
+    assert s.solver.handover == "auto"
+    mono = solve_step(s, state, spec, 11)
+    assert mono.status is Status.OPTIMAL
+    found = search_step(s, state, spec, 11)
+    assert found.status is Status.OPTIMAL
+    assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
+    assert held_by_both(found)
+    assert replayed_trace_satisfies(s, spec, found, state)
+    assert search_step(s, state, spec, 10).status is Status.INFEASIBLE
 
 
 @pytest.mark.parametrize("seed", [0, 3])
