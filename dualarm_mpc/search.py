@@ -603,7 +603,7 @@ class StepSearch:
         "infeasible" covers every plan."""
         if self._feasible_rounds():
             return True
-        if self.stats.timed_out or self.handover != "auto" or self._relays \
+        if self.stats.timed_out or self.handover != "auto" \
                 or not self._relayable() - self._needed():
             return self.stats.timed_out
         self._relays = True
