@@ -4,8 +4,9 @@ The monolithic MILP of one horizon has an LP relaxation whose bound is zero (a f
 an object while the hands' fractions cancel), so HiGHS proves optimality and infeasibility by
 enumeration alone. This module splits the same MILP along its discrete skeleton and searches it
 best-first with admissible bounds; with hand-overs allowed for every object (``handover:
-always``) it returns the monolithic optimum of the same horizon, by default (``auto``) the
-optimum over the plans that hand over only the objects no single hand can deliver.
+always``) it returns the monolithic optimum of the same horizon; by default (``auto``) the
+same at a horizon that has no plan without a relay, else the optimum over the plans that hand
+over only the objects no single hand can deliver.
 
 *Skeleton node* (D, h): the set D of m_o objects whose delivery satisfies φ_task (13), and for
 each j ∈ D the hand h_j that may hold it (1, 2, or ``BOTH`` for a hand-over). The node's program
@@ -14,7 +15,8 @@ j ∈ D delivered": a restriction, so its optimum is never below the monolithic 
 cover every plan: a plan delivers some D, the hands it uses on D are within some h, and objects
 outside D can be left untouched without changing cost or any rule — which :func:`untouchable`
 proves per rule instance by partial evaluation; objects where that proof fails, and objects held
-now, stay free.
+now, stay free. Of the nodes with hand-overs only the widest per D is searched: it covers the
+others.
 
 *Bounds.* Costing one hand only (the other moves for free, so eq. 16 costs it nothing) and
 leaving out the rule instances that mention the other hand's objects separates a node into one
@@ -564,20 +566,30 @@ class StepSearch:
         return {j for j in alone if self._relax[("alone", j)].status is not Status.INFEASIBLE}
 
     def nodes(self, handed_over: bool = True) -> list[Node]:
-        """Every skeleton (D, h); only those with one hand per object unless ``handed_over``
-        (:meth:`handed_over_objects` says which objects get the label BOTH). Without hand-over
-        labels for every object, the search is exact over the plans in which each object is
-        held by one hand at most; with them (``always``), against the monolithic MILP."""
+        """The skeletons (D, h) the search covers the plans with: every one with one hand per
+        object, and unless not ``handed_over``, for each D the widest with hand-overs: every
+        object of D that may be handed over (:meth:`handed_over_objects`) labelled BOTH, the
+        others one hand each. A widest node's plans include those of every node that labels
+        some of these objects with one hand only, so those are left out: one probe or one
+        solve decides them all, where each of them would need its own ((3,5) rule 2: a
+        horizon's relay pass 17.6 → 10.8 s). Without hand-over labels for every object, the
+        search is exact over the plans in which each object is held by one hand at most; with
+        them (``always``), against the monolithic MILP."""
         if self._deliveries is None:  # D and its free objects, for every D
             self._deliveries = []
             for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
                 quiet = untouchable(self.spec, self.state, delivered)
                 self._deliveries.append((delivered, frozenset(
                     j for j in self.spec.objects if j not in delivered and j not in quiet)))
-        both = self.handed_over_objects() if handed_over else set()
-        return [Node(delivered, hands, free) for delivered, free in self._deliveries
-                for hands in itertools.product(*[(0, 1, BOTH) if j in both else (0, 1)
-                                                 for j in delivered])]
+        single = [Node(delivered, hands, free) for delivered, free in self._deliveries
+                  for hands in itertools.product((0, 1), repeat=len(delivered))]
+        if not handed_over:
+            return single
+        both = self.handed_over_objects()
+        return single + [Node(delivered, hands, free) for delivered, free in self._deliveries
+                         if both.intersection(delivered)
+                         for hands in itertools.product(*[(BOTH,) if j in both else (0, 1)
+                                                          for j in delivered])]
 
     def _probe_order(self):
         """The nodes as the feasibility checks visit them: one hand per object first, then

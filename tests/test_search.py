@@ -9,6 +9,7 @@ evaluated directly (``evaluate.py`` shares no code with either program).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.ltl import FALSE, TRUE, Atom, parse
 from dualarm_mpc.mld import POSITION_TOL, Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.search import StepSearch, partial, search_step, untouchable
+from dualarm_mpc.search import BOTH, StepSearch, partial, search_step, untouchable
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import RULE_TEXT, expand, rule_formulas, specification, survives_idling
 
@@ -207,6 +208,21 @@ def test_search_returns_the_monolithic_optimum_delivering_three(seed: int) -> No
     assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
     assert replayed_trace_satisfies(s, spec, found)
     assert search_step(s, state, spec, mono.horizon - 1).status is Status.INFEASIBLE
+
+
+def test_the_nodes_cover_every_labelling_with_one_widest_hand_over_node_per_delivered_set() -> None:
+    s = random_scene(2)
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=2))
+    spec = specification(s, [0, 1, 2])
+    search = StepSearch(s, State.initial(s), spec, 10, SolveOptions(time_limit_s=5),
+                        handover="always")
+    nodes = search.nodes()
+    for delivered in itertools.combinations(spec.objects, 2):
+        mine = [n.hands for n in nodes if n.delivered == delivered]
+        assert mine.count((BOTH, BOTH)) == 1 and len(mine) == 2 ** 2 + 1
+        for hands in itertools.product((0, 1, BOTH), repeat=2):  # every plan's skeleton
+            assert any(all(h in (g, BOTH) for g, h in zip(hands, node, strict=True))
+                       for node in mine)
 
 
 def relay_step():
