@@ -609,19 +609,15 @@ class StepSearch:
         later in the order is still found; the horizon is infeasible only when every node is
         proven so, as without rounds.
 
-        With ``auto`` hand-overs, a horizon without a plan among those nodes is searched again
-        with relays (:meth:`handed_over_objects`): a relay can make a horizon feasible that
-        is not without one, and the step's horizon is that of Algorithm 1 only if
-        "infeasible" covers every plan."""
-        if self._feasible_rounds():
-            return True
-        if self.stats.timed_out or self.handover != "auto" \
-                or not self._relayable() - self._needed():
-            return self.stats.timed_out
-        self._relays = True
-        return self._feasible_rounds()
-
-    def _feasible_rounds(self) -> bool:
+        With ``auto`` hand-overs, a round that finds no plan among the nodes with one hand per
+        object (none has one, or one ran out of its slice) turns to relays
+        (:meth:`handed_over_objects`): from then on the widest relay nodes, which cover every
+        plan, alone decide the horizon. A relay can make a horizon feasible that is not
+        without one, and the step's horizon is that of Algorithm 1 only if "infeasible" covers
+        every plan; nor are relays left for the proof that no other node has a plan, the slow
+        part where they matter ((3,5) rule 2, seed 0, second step: the one-hand pair programs
+        undecided at every horizon up to 20, while a relay node has a plan at 15, found in
+        2 s)."""
         self._slice = FIRST_SLICE * self.options.time_limit_s
         try:
             while True:
@@ -648,8 +644,46 @@ class StepSearch:
     def _feasible_round(self) -> bool:
         """One round of :meth:`feasible`: True when it found a plan (the witness); else
         ``stats.timed_out`` says whether a node was left undecided."""
+        if not self._relays:
+            may_relay = self.handover == "auto" and bool(self._relayable() - self._needed())
+            if self._probe(self.nodes(handed_over=False), stop_undecided=may_relay):
+                return True
+            if may_relay and not self._stopped():
+                self._relays = True
+                self.stats.timed_out = False  # what the nodes left open, the widest decide
+        return self._probe_widest()
+
+    def _probe_widest(self) -> bool:
+        """Probe the widest nodes with relays, which cover every plan and so alone decide the
+        horizon, on every worker at once (a joint program each: one would leave the other
+        worker idle): True when one has a plan (the witness)."""
+        wide = [n for n in self.nodes() if n.handed_over and n not in self._ruled]
+        relaxed = [self._relaxations_feasible(n) for n in wide]
+        self.stats.timed_out |= None in relaxed
+        self._ruled.update(n for n, r in zip(wide, relaxed, strict=True) if r is False)
+        wide = [n for n, r in zip(wide, relaxed, strict=True) if r]
+        for at in range(0, len(wide), BATCH):
+            if self._stopped():
+                self.stats.timed_out = True
+                return False
+            batch = wide[at:at + BATCH]
+            for node, witness in zip(batch, self._map(lambda n: self.joint(n, exact=False),
+                                                      batch), strict=True):
+                if witness.status.has_solution:
+                    self._witness = witness
+                    return True
+                if witness.status is Status.INFEASIBLE:
+                    self._ruled.add(node)
+                else:
+                    self.stats.timed_out = True
+        return False
+
+    def _probe(self, nodes: Iterable[Node], stop_undecided: bool = False) -> bool:
+        """Probe ``nodes`` (those with one hand per object) in turn until one has a plan (the
+        witness, True), or with ``stop_undecided`` one is left undecided; the relaxations of
+        the nodes after each are fetched beside its own."""
         single_hand = self.nodes(handed_over=False)
-        for n, node in enumerate(self._probe_order()):
+        for n, node in enumerate(nodes):
             if self._stopped():
                 self.stats.timed_out = True
                 break
@@ -659,10 +693,12 @@ class StepSearch:
                 self.fetch((("hand", i, (j,)), False)
                            for j in self.spec.objects for i in range(N_HANDS))
             # and so will the larger shares of the nodes after it: a few at once
-            relaxed = self._relaxations_feasible(node, self._ahead(single_hand[n + 1:]) if n
-                                                 else ())
+            relaxed = self._relaxations_feasible(
+                node, self._ahead(single_hand[n + 1:]) if n else ())
             if relaxed is None:  # a relaxation ran out of time: the node is undecided
                 self.stats.timed_out = True
+                if stop_undecided:
+                    break
                 continue
             if not relaxed:
                 self._ruled.add(node)
@@ -677,6 +713,8 @@ class StepSearch:
                 self._ruled.add(node)
             else:
                 self.stats.timed_out = True
+                if stop_undecided:
+                    break
         return False
 
     def _relaxations_feasible(self, node: Node, ahead: Iterable[tuple] = ()) -> bool | None:

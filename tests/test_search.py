@@ -252,6 +252,23 @@ def test_the_default_search_finds_the_horizon_only_a_relay_makes_feasible() -> N
     assert search_step(s, state, spec, 10).status is Status.INFEASIBLE
 
 
+class OneHandSharesRunOut(StepSearch):
+    """Every one-hand share "runs out of time": no node with one hand per object is decided."""
+
+    def _compute(self, key, exact, cutoff=np.inf):
+        res = super()._compute(key, exact, cutoff)
+        if key[0] == "hand" and key[2]:
+            return dataclasses.replace(res, status=Status.TIME_LIMIT, trajectory=None)
+        return res
+
+
+def test_relays_are_probed_when_the_nodes_without_them_are_left_undecided() -> None:
+    s, state, spec = relay_step()
+    search = OneHandSharesRunOut(s, state, spec, 11, SolveOptions(time_limit_s=60))
+    assert search.feasible() and not search.stats.timed_out
+    assert held_by_both(search._witness)
+
+
 @pytest.mark.parametrize("seed", [0, 3])
 def test_plans_carried_up_a_horizon_change_nothing(seed: int) -> None:
     """A step's horizons hand their relaxations with a plan to the next one, where each, idled
