@@ -667,16 +667,23 @@ class StepSearch:
                 self.stats.timed_out = True
                 return False
             batch = wide[at:at + BATCH]
-            for node, witness in zip(batch, self._map(lambda n: self.joint(n, exact=False),
-                                                      batch), strict=True):
-                if witness.status.has_solution:
-                    self._witness = witness
+            probes = self._map(lambda n: self.joint(n, exact=False), batch)
+            for node, probe in zip(batch, probes, strict=True):
+                if self._settle(node, probe):
                     return True
-                if witness.status is Status.INFEASIBLE:
-                    self._ruled.add(node)
-                else:
-                    self.stats.timed_out = True
         return False
+
+    def _settle(self, node: Node, probe: StepResult) -> bool | None:
+        """What the feasibility probe of ``node`` decided: a plan (the witness, True), none
+        (the node is ruled out, False), or nothing in its time (None)."""
+        if probe.status.has_solution:
+            self._witness = probe
+            return True
+        if probe.status is Status.INFEASIBLE:
+            self._ruled.add(node)
+            return False
+        self.stats.timed_out = True
+        return None
 
     def _probe(self, nodes: Iterable[Node], stop_undecided: bool = False) -> bool:
         """Probe ``nodes`` (those with one hand per object) in turn until one has a plan (the
@@ -706,15 +713,11 @@ class StepSearch:
             witness = None if node.handed_over or node.free else self.compose(node, exact=False)
             if witness is None:
                 witness = self.joint(node, exact=False)
-            if witness.status.has_solution:
-                self._witness = witness
+            settled = self._settle(node, witness)
+            if settled:
                 return True
-            if witness.status is Status.INFEASIBLE:
-                self._ruled.add(node)
-            else:
-                self.stats.timed_out = True
-                if stop_undecided:
-                    break
+            if settled is None and stop_undecided:
+                break
         return False
 
     def _relaxations_feasible(self, node: Node, ahead: Iterable[tuple] = ()) -> bool | None:
