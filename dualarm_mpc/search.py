@@ -592,8 +592,9 @@ class StepSearch:
                                                           for j in delivered])]
 
     def _probe_order(self):
-        """The nodes as the feasibility checks visit them: one hand per object first, then
-        hand-overs (which need every single-hand relaxation to know which objects get them)."""
+        """The nodes as :meth:`ruled_out` visits them: one hand per object first, then
+        hand-overs (which need every single-hand relaxation to know which objects get them,
+        so they are listed only if the first are all ruled out)."""
         yield from self.nodes(handed_over=False)
         yield from (n for n in self.nodes() if n.handed_over)
 
