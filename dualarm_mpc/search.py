@@ -539,8 +539,8 @@ class StepSearch:
     def handed_over_objects(self) -> set[int]:
         """The objects with hand-over labels: every one with ``always``; none with ``never``;
         with ``auto`` those that neither hand can deliver alone but both together can, and,
-        once the horizon is known to have no plan without a relay (:meth:`feasible`), every
-        object a hand may put down outside its goal for the other to pick up."""
+        once a round of the feasibility pass found no plan without a relay (:meth:`feasible`),
+        every object a hand may put down outside its goal for the other to pick up."""
         if self.handover != "auto":
             return set(self.spec.objects) if self.handover == "always" else set()
         return self._needed() | (self._relayable() if self._relays else set())
@@ -647,7 +647,7 @@ class StepSearch:
         ``stats.timed_out`` says whether a node was left undecided."""
         if not self._relays:
             may_relay = self.handover == "auto" and bool(self._relayable() - self._needed())
-            if self._probe(self.nodes(handed_over=False), stop_undecided=may_relay):
+            if self._probe(stop_undecided=may_relay):
                 return True
             if may_relay and not self._stopped():
                 self._relays = True
@@ -686,12 +686,12 @@ class StepSearch:
         self.stats.timed_out = True
         return None
 
-    def _probe(self, nodes: Iterable[Node], stop_undecided: bool = False) -> bool:
-        """Probe ``nodes`` (those with one hand per object) in turn until one has a plan (the
-        witness, True), or with ``stop_undecided`` one is left undecided; the relaxations of
-        the nodes after each are fetched beside its own."""
+    def _probe(self, stop_undecided: bool = False) -> bool:
+        """Probe the nodes with one hand per object in turn until one has a plan (the witness,
+        True), or with ``stop_undecided`` one is left undecided; the relaxations of the nodes
+        after each are fetched beside its own."""
         single_hand = self.nodes(handed_over=False)
-        for n, node in enumerate(nodes):
+        for n, node in enumerate(single_hand):
             if self._stopped():
                 self.stats.timed_out = True
                 break
@@ -711,7 +711,7 @@ class StepSearch:
             if not relaxed:
                 self._ruled.add(node)
                 continue
-            witness = None if node.handed_over or node.free else self.compose(node, exact=False)
+            witness = None if node.free else self.compose(node, exact=False)
             if witness is None:
                 witness = self.joint(node, exact=False)
             settled = self._settle(node, witness)
