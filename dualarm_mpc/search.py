@@ -220,7 +220,6 @@ class StepSearch:
         self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._slice = np.inf  # the time a program may take (the feasibility pass's rounds)
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
-        self._deliveries: list[tuple[tuple[int, ...], frozenset[int]]] | None = None
         # ``auto``: relays are searched once the nodes without them have no plan (see
         # handed_over_objects); the nodes the feasibility pass proved infeasible meanwhile.
         self._relays = False
@@ -575,28 +574,35 @@ class StepSearch:
         horizon's relay pass 17.6 → 10.8 s). Without hand-over labels for every object, the
         search is exact over the plans in which each object is held by one hand at most; with
         them (``always``), against the monolithic MILP."""
-        if self._deliveries is None:  # D and its free objects, for every D
-            self._deliveries = []
-            for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
-                quiet = untouchable(self.spec, self.state, delivered)
-                self._deliveries.append((delivered, frozenset(
-                    j for j in self.spec.objects if j not in delivered and j not in quiet)))
         single = [Node(delivered, hands, free) for delivered, free in self._deliveries
                   for hands in itertools.product((0, 1), repeat=len(delivered))]
-        if not handed_over:
-            return single
+        return single + self._widest() if handed_over else single
+
+    @functools.cached_property
+    def _deliveries(self) -> list[tuple[tuple[int, ...], frozenset[int]]]:
+        """Every D, with its free objects (outside D and not provably untouchable)."""
+        deliveries = []
+        for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
+            quiet = untouchable(self.spec, self.state, delivered)
+            deliveries.append((delivered, frozenset(
+                j for j in self.spec.objects if j not in delivered and j not in quiet)))
+        return deliveries
+
+    def _widest(self) -> list[Node]:
+        """The widest nodes with hand-overs of each D (see :meth:`nodes`): one, unless some
+        object of D may not be handed over."""
         both = self.handed_over_objects()
-        return single + [Node(delivered, hands, free) for delivered, free in self._deliveries
-                         if both.intersection(delivered)
-                         for hands in itertools.product(*[(BOTH,) if j in both else (0, 1)
-                                                          for j in delivered])]
+        return [Node(delivered, hands, free) for delivered, free in self._deliveries
+                if both.intersection(delivered)
+                for hands in itertools.product(*[(BOTH,) if j in both else (0, 1)
+                                                 for j in delivered])]
 
     def _probe_order(self):
         """The nodes as :meth:`ruled_out` visits them: one hand per object first, then
         hand-overs (which need every single-hand relaxation to know which objects get them,
         so they are listed only if the first are all ruled out)."""
         yield from self.nodes(handed_over=False)
-        yield from (n for n in self.nodes() if n.handed_over)
+        yield from self._widest()
 
     def feasible(self) -> bool:
         """Whether the horizon admits a plan, decided with feasibility probes (first solutions,
@@ -658,7 +664,7 @@ class StepSearch:
         """Probe the widest nodes with relays, which cover every plan and so alone decide the
         horizon, on every worker at once (a joint program each: one would leave the other
         worker idle): True when one has a plan (the witness)."""
-        wide = [n for n in self.nodes() if n.handed_over and n not in self._ruled]
+        wide = [n for n in self._widest() if n not in self._ruled]
         relaxed = [self._relaxations_feasible(n) for n in wide]
         self.stats.timed_out |= None in relaxed
         self._ruled.update(n for n, r in zip(wide, relaxed, strict=True) if r is False)
