@@ -57,6 +57,7 @@ __all__ = [
     "eta",
     "nnf",
     "parse",
+    "partial",
     "placeholders",
     "substitute",
     "theta",
@@ -614,3 +615,48 @@ def substitute(f: Formula, mapping: Mapping[str, int]) -> Formula:
             a.name, tuple(mapping.get(e, e) if isinstance(e, str) else e for e in a.index)
         ),
     )
+
+
+def partial(f: Formula, known: dict[Atom, bool]) -> Formula:
+    """``f`` with the atoms of ``known`` (constant over all steps) replaced and simplified.
+
+    Only simplifications valid at every step of an LTLf trace are made: ``X TRUE`` is not TRUE
+    (strong next is false at the last step), everything else folds as in propositional logic
+    (``G TRUE``, ``F TRUE``, ``WX TRUE``, ``a U TRUE``, ``a R TRUE`` are TRUE; duals for FALSE)."""
+    match f:
+        case Atom():
+            return Const(known[f]) if f in known else f
+        case Const():
+            return f
+        case Not(a):
+            a = partial(a, known)
+            return Const(not a.value) if isinstance(a, Const) else Not(a)
+        case And(args) | Or(args):
+            unit, zero = (TRUE, FALSE) if isinstance(f, And) else (FALSE, TRUE)
+            kept = []
+            for a in (partial(a, known) for a in args):
+                if a == zero:
+                    return zero
+                if a != unit:
+                    kept.append(a)
+            return unit if not kept else kept[0] if len(kept) == 1 else type(f)(tuple(kept))
+        case Implies(a, b):
+            a, b = partial(a, known), partial(b, known)
+            if a == FALSE or b == TRUE:
+                return TRUE
+            if a == TRUE:
+                return b
+            return Implies(a, b)
+        case Always(a) | Eventually(a) | WeakNext(a):
+            a = partial(a, known)
+            return a if isinstance(a, Const) and (a.value or not isinstance(f, WeakNext)) \
+                else type(f)(a)
+        case Next(a):
+            a = partial(a, known)
+            return FALSE if a == FALSE else Next(a)
+        case Until(a, b) | Release(a, b):
+            a, b = partial(a, known), partial(b, known)
+            if isinstance(b, Const):
+                return b
+            return type(f)(a, b)
+    raise TypeError(f"not a Formula: {f!r}")

@@ -13,7 +13,7 @@ each j ∈ D the hand h_j that may hold it (1, 2, or ``BOTH`` for a hand-over). 
 is the monolithic one with η_ij(k ≥ 1) = 0 outside the skeleton and φ_task replaced by "every
 j ∈ D delivered": a restriction, so its optimum is never below the monolithic one. The nodes
 cover every plan: a plan delivers some D, the hands it uses on D are within some h, and objects
-outside D can be left untouched without changing cost or any rule — which :func:`untouchable`
+outside D can be left untouched without changing cost or any rule — which :func:`spec.untouchable`
 proves per rule instance by partial evaluation; objects where that proof fails, and objects held
 now, stay free. Of the nodes with hand-overs only the widest per D is searched: it covers the
 others.
@@ -51,30 +51,12 @@ import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import HorizonProgram, StepResult, solver_options
-from dualarm_mpc.ltl import (
-    FALSE,
-    TRUE,
-    Always,
-    And,
-    Atom,
-    Const,
-    Eventually,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Or,
-    Release,
-    Until,
-    WeakNext,
-    atoms,
-    conj,
-)
+from dualarm_mpc.ltl import Atom
 from dualarm_mpc.mld import N_HANDS, Rect, State, in_goal, replay, violations
 from dualarm_mpc.route import Order, orders, route_steps
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import Specification, instances
+from dualarm_mpc.spec import Specification, restricted, untouchable
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
 BATCH = 2  # nodes evaluated at once in the best-first loop
@@ -86,89 +68,6 @@ FETCH = 4
 # time left: one program that runs long (a rule-2 pair at a horizon past its first plan) then
 # no longer leaves the horizon undecided while other nodes would have a plan.
 FIRST_SLICE = 1 / 16
-
-
-# --- rule instances ----------------------------------------------------------------------------
-
-
-def objects_of(formula: Formula) -> frozenset[int]:
-    """The object numbers (1-based) that the atoms of ``formula`` mention."""
-    return frozenset(a.index[-1] for a in atoms(formula)
-                     if a.index and isinstance(a.index[-1], int))
-
-
-def partial(f: Formula, known: dict[Atom, bool]) -> Formula:
-    """``f`` with the atoms of ``known`` (constant over all steps) replaced and simplified.
-
-    Only simplifications valid at every step of an LTLf trace are made: ``X TRUE`` is not TRUE
-    (strong next is false at the last step), everything else folds as in propositional logic
-    (``G TRUE``, ``F TRUE``, ``WX TRUE``, ``a U TRUE``, ``a R TRUE`` are TRUE; duals for FALSE)."""
-    match f:
-        case Atom():
-            return Const(known[f]) if f in known else f
-        case Const():
-            return f
-        case Not(a):
-            a = partial(a, known)
-            return Const(not a.value) if isinstance(a, Const) else Not(a)
-        case And(args) | Or(args):
-            unit, zero = (TRUE, FALSE) if isinstance(f, And) else (FALSE, TRUE)
-            kept = []
-            for a in (partial(a, known) for a in args):
-                if a == zero:
-                    return zero
-                if a != unit:
-                    kept.append(a)
-            return unit if not kept else kept[0] if len(kept) == 1 else type(f)(tuple(kept))
-        case Implies(a, b):
-            a, b = partial(a, known), partial(b, known)
-            if a == FALSE or b == TRUE:
-                return TRUE
-            if a == TRUE:
-                return b
-            return Implies(a, b)
-        case Always(a) | Eventually(a) | WeakNext(a):
-            a = partial(a, known)
-            return a if isinstance(a, Const) and (a.value or not isinstance(f, WeakNext)) \
-                else type(f)(a)
-        case Next(a):
-            a = partial(a, known)
-            return FALSE if a == FALSE else Next(a)
-        case Until(a, b) | Release(a, b):
-            a, b = partial(a, known), partial(b, known)
-            if isinstance(b, Const):
-                return b
-            return type(f)(a, b)
-    raise TypeError(f"not a Formula: {f!r}")
-
-
-def untouchable(spec: Specification, state: State, delivered: Iterable[int]) -> frozenset[int]:
-    """The step's objects outside ``delivered`` (scenario indices) that an optimal plan may leave
-    untouched: none is held now, and every rule instance that mentions one is TRUE once their η
-    are FALSE at every step. Untouching them keeps the hands' motion, hence the cost, and every
-    other object's motion, hence φ_task."""
-    outside = [j for j in spec.objects if j not in set(delivered)]
-    candidates = {j for j in outside if not state.grasp[:, j].any()}
-    known = {Atom("eta", (i, j + 1)): False for i in (1, 2) for j in candidates}
-    numbers = {j + 1 for j in candidates}
-    for _, rule in spec.rules:
-        for inst in instances(rule):
-            if objects_of(inst) & numbers and partial(inst, known) != TRUE:
-                return frozenset()  # conservative: leave every outside object free
-    return frozenset(candidates)
-
-
-def restricted(spec: Specification, targets: Iterable[int], keep: Iterable[int]) -> Specification:
-    """A relaxation for the bounds: deliver every object of ``targets`` (φ_task stronger, as in
-    the node), and keep only the rule instances whose step objects all lie in ``keep``."""
-    targets = tuple(sorted(targets))
-    step = {j + 1 for j in spec.objects}
-    allowed = {j + 1 for j in keep}
-    rules = tuple(
-        (name, conj(i for i in instances(f) if (objects_of(i) & step) <= allowed))
-        for name, f in spec.rules
-    )
-    return replace(spec, targets=targets, m_o=len(targets), task_form="counting", rules=rules)
 
 
 # --- the search --------------------------------------------------------------------------------

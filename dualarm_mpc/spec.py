@@ -12,10 +12,12 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.ltl import (
+    TRUE,
     Always,
     And,
     Atom,
@@ -32,11 +34,13 @@ from dualarm_mpc.ltl import (
     disj,
     nnf,
     parse,
+    partial,
     placeholders,
     rename_atoms,
     substitute,
     theta,
 )
+from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, ScenarioError
 
 ARMS = (1, 2)
@@ -315,3 +319,40 @@ def specification(scenario: Scenario, objects: list[int], m_o: int | None = None
         rules=tuple((name, expand(f, numbers)) for name, f in named),
     )
 
+
+# --- relaxations for the skeleton search (search.py) -----------------------------------------
+
+
+def objects_of(formula: Formula) -> frozenset[int]:
+    """The object numbers (1-based) that the atoms of ``formula`` mention."""
+    return frozenset(a.index[-1] for a in atoms(formula)
+                     if a.index and isinstance(a.index[-1], int))
+
+
+def untouchable(spec: Specification, state: State, delivered: Iterable[int]) -> frozenset[int]:
+    """The step's objects outside ``delivered`` (scenario indices) that an optimal plan may leave
+    untouched: none is held now, and every rule instance that mentions one is TRUE once their η
+    are FALSE at every step. Untouching them keeps the hands' motion, hence the cost, and every
+    other object's motion, hence φ_task."""
+    outside = [j for j in spec.objects if j not in set(delivered)]
+    candidates = {j for j in outside if not state.grasp[:, j].any()}
+    known = {Atom("eta", (i, j + 1)): False for i in (1, 2) for j in candidates}
+    numbers = {j + 1 for j in candidates}
+    for _, rule in spec.rules:
+        for inst in instances(rule):
+            if objects_of(inst) & numbers and partial(inst, known) != TRUE:
+                return frozenset()  # conservative: leave every outside object free
+    return frozenset(candidates)
+
+
+def restricted(spec: Specification, targets: Iterable[int], keep: Iterable[int]) -> Specification:
+    """A relaxation for the bounds: deliver every object of ``targets`` (φ_task stronger, as in
+    the node), and keep only the rule instances whose step objects all lie in ``keep``."""
+    targets = tuple(sorted(targets))
+    step = {j + 1 for j in spec.objects}
+    allowed = {j + 1 for j in keep}
+    rules = tuple(
+        (name, conj(i for i in instances(f) if (objects_of(i) & step) <= allowed))
+        for name, f in spec.rules
+    )
+    return replace(spec, targets=targets, m_o=len(targets), task_form="counting", rules=rules)

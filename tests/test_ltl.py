@@ -38,6 +38,7 @@ from dualarm_mpc.ltl import (
     eta,
     nnf,
     parse,
+    partial,
     placeholders,
     substitute,
     theta,
@@ -289,3 +290,19 @@ def test_atoms_placeholders_substitute() -> None:
     assert g == parse("G(eta[2,3] -> WX theta[3]) & F p & eta[1,l]")
     assert placeholders(g) == {"l"}
     assert placeholders(substitute(g, {"l": 1})) == frozenset()
+
+
+@pytest.mark.parametrize(
+    ("text", "known", "expected"),
+    [
+        ("G(eta[1,2] & WX !eta[1,2] -> WX theta[2])", {"eta[1,2]": False}, TRUE),
+        ("G(eta[1,3] -> WX !eta[1,2])", {"eta[1,2]": False}, TRUE),
+        ("F eta[1,2]", {"eta[1,2]": False}, FALSE),
+        ("X true", {}, parse("X true")),  # strong next is false at the last step
+        ("WX false", {}, parse("WX false")),
+        ("theta[1] U true", {}, TRUE),
+    ],
+)
+def test_partial_evaluation_folds_only_what_holds_at_every_step(text, known, expected) -> None:
+    atoms = {parse(k): v for k, v in known.items()}
+    assert partial(parse(text), atoms) == expected

@@ -20,9 +20,8 @@ from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.mld import N_HANDS, Model, State, in_goal
 from dualarm_mpc.route import axis_steps, axis_times, horizon_bound, orders, route_steps
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.search import restricted
 from dualarm_mpc.solver import SolveOptions, Status, solve_standard_form
-from dualarm_mpc.spec import specification
+from dualarm_mpc.spec import restricted, specification
 
 
 def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:

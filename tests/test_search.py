@@ -20,30 +20,21 @@ from strategies import formulas, traces
 
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import solve_step
-from dualarm_mpc.ltl import FALSE, TRUE, Atom, parse
+from dualarm_mpc.ltl import Atom, parse
 from dualarm_mpc.mld import POSITION_TOL, Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.search import BOTH, StepSearch, partial, search_step, untouchable
+from dualarm_mpc.search import BOTH, StepSearch, search_step
 from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import RULE_TEXT, expand, rule_formulas, specification, survives_idling
-
-# --- partial evaluation and untouched objects ---------------------------------------------------
-
-
-@pytest.mark.parametrize(
-    ("text", "known", "expected"),
-    [
-        ("G(eta[1,2] & WX !eta[1,2] -> WX theta[2])", {"eta[1,2]": False}, TRUE),
-        ("G(eta[1,3] -> WX !eta[1,2])", {"eta[1,2]": False}, TRUE),
-        ("F eta[1,2]", {"eta[1,2]": False}, FALSE),
-        ("X true", {}, parse("X true")),  # strong next is false at the last step
-        ("WX false", {}, parse("WX false")),
-        ("theta[1] U true", {}, TRUE),
-    ],
+from dualarm_mpc.spec import (
+    RULE_TEXT,
+    expand,
+    rule_formulas,
+    specification,
+    survives_idling,
+    untouchable,
 )
-def test_partial_evaluation_folds_only_what_holds_at_every_step(text, known, expected) -> None:
-    atoms = {parse(k): v for k, v in known.items()}
-    assert partial(parse(text), atoms) == expected
+
+# --- untouched objects (spec.untouchable) ---------------------------------------------------------
 
 
 def scene(rule: int = 2, rules: tuple[str, ...] = (), **overrides) -> Scenario:
