@@ -1,0 +1,160 @@
+"""The horizons of one sequential step: where the time of a hard step goes.
+
+What it measures: for one Table II model of ``table1_vd`` (a row (m_o, n_o), a rule, a seed;
+delivery ``reach``, as in bench/table2.py), the steps before the one asked are planned as the
+bench plans them (skeleton search, ``--plan-time-limit`` per horizon), and that step is then
+solved at every horizon asked, by the skeleton search (its feasibility pass and best-first
+search, ``search.search_step``) and by the monolithic MILP (``horizon.solve_step``), each with
+``--time-limit`` per solve, one solve at a time. Per horizon and method: the status (a horizon
+below the step's first plan is "infeasible" when proven so, "time_limit" when left undecided),
+cost, bound, gap, wall and CPU time (this process, every thread). Algorithm 1 takes the first
+horizon with a plan from predictT on, so every horizon below that one must be proven
+infeasible for the step to be decided; this shows which are, and at what cost. It is the
+measurement behind docs/search-experiments.md ("Open: a bound for relay nodes").
+
+Run it (from the repository root)::
+
+    .venv/bin/python bench/horizons.py --row 3,5 --rule 2 --seed 0 --step 2 --horizons 12-17
+
+The Markdown table goes to stdout and next to the JSON (``--json``, default
+bench/results/horizons.json), which keeps every solve, the step's start state, the machine and
+the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from benchlib import fmt, footer, machine, table, write_json_atomic, write_report
+from table2 import SCENARIO, parse_row
+
+from dualarm_mpc.horizon import solve_step, solver_options
+from dualarm_mpc.mld import State
+from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.search import search_step
+from dualarm_mpc.sequential import at_rest_in_goal, plan, predict_horizon, select_objects
+from dualarm_mpc.solver import Interrupt
+from dualarm_mpc.spec import specification
+
+METHODS = {"search": search_step, "monolithic": solve_step}
+
+
+def parse_horizons(text: str) -> list[int]:
+    """``12-17`` (a range) or ``12,14,16`` (a list)."""
+    try:
+        if "-" in text:
+            lo, hi = (int(v) for v in text.split("-"))
+            return list(range(lo, hi + 1))
+        return [int(v) for v in text.split(",")]
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"expected 12-17 or 12,14,16, got {text!r}") from err
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--row", type=parse_row, default=(3, 5), metavar="M,N")
+    p.add_argument("--rule", type=int, choices=(1, 2), default=2)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--step", type=int, default=2, help="the sequential step (1 = the first)")
+    p.add_argument("--horizons", type=parse_horizons, required=True, metavar="A-B")
+    p.add_argument("--time-limit", type=float, default=60.0, help="seconds per solve")
+    p.add_argument("--plan-time-limit", type=float, default=30.0,
+                   help="seconds per horizon for the steps before (bench/table2.py's)")
+    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
+    p.add_argument("--json", type=Path, default=Path("bench/results/horizons.json"))
+    args = p.parse_args(argv)
+    if args.step < 1:
+        p.error("--step: the first step is 1")
+    return args
+
+
+def scenario_for(args: argparse.Namespace, time_limit: float):
+    m_o, n_o = args.row
+    return load_scenario(SCENARIO, {"m_o": m_o, "n_o": n_o, "rule": args.rule, "seed": args.seed,
+                                    "delivery": "reach", "solver": {"time_limit_s": time_limit}})
+
+
+def step_start(args: argparse.Namespace) -> tuple[State, list[dict]]:
+    """The state the step starts from: Algorithm 1 run up to it (stopped as the step before
+    ends), with the steps planned on the way."""
+    scenario = scenario_for(args, args.plan_time_limit)
+    if args.step == 1:
+        return State.initial(scenario), []
+    stop = Interrupt()
+    options = replace(solver_options(scenario), interrupt=stop)
+
+    planned = []
+
+    def progress(segment) -> None:
+        planned.append(segment)
+        if len(planned) >= args.step - 1:
+            stop.set()  # the next step stops before its first solve
+
+    result = plan(scenario, options, progress=progress)
+    if len(result.segments) < args.step - 1:
+        raise SystemExit(f"the plan has {len(result.segments)} steps, none numbered {args.step}")
+    return State.last(result.trajectory), [s.to_json() for s in result.segments]
+
+
+def solve(scenario, state: State, spec, horizon: int, method: str) -> dict:
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    res = METHODS[method](scenario, state, spec, horizon)
+    has_plan = res.status.has_solution
+    return {"horizon": horizon, "method": method, "status": res.status.value,
+            "cost": res.cost if has_plan else None,
+            "bound": res.bound if math.isfinite(res.bound) else None,  # none: no plan at all
+            "gap": float(res.gap) if has_plan else None, "wall_s": time.perf_counter() - t0,
+            "cpu_s": time.process_time() - cpu0}
+
+
+def report(data: dict) -> str:
+    step = data["step"]
+    head = (f"{SCENARIO} ({data['options']['row'][0]},{data['options']['row'][1]}) rule "
+            f"{data['options']['rule']} seed {data['options']['seed']}, step "
+            f"{data['options']['step']}: objects {', '.join(str(j + 1) for j in step['objects'])}"
+            f", predictT {step['predicted_horizon']}; {data['options']['time_limit']:g} s a "
+            "solve, one at a time:")
+    rows = [[str(s["horizon"]), s["method"], s["status"], fmt(s["cost"], ".4f"),
+             fmt(s["bound"], ".4f"), fmt(s["gap"], ".3f"), fmt(s["wall_s"], ".1f"),
+             fmt(s["cpu_s"], ".1f")] for s in data["solves"]]
+    header = ["T", "method", "status", "cost", "bound", "gap", "wall (s)", "CPU (s)"]
+    return "\n".join([head, "", table(header, rows), ""])
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    t0 = time.perf_counter()
+    info = machine()
+    state, before = step_start(args)
+    scenario = scenario_for(args, args.time_limit)
+    remaining = [j for j in range(scenario.n_objects) if not at_rest_in_goal(scenario, state)[j]]
+    if not remaining:
+        raise SystemExit(f"every object is delivered before step {args.step}")
+    objects = select_objects(scenario, state, remaining)
+    spec = specification(scenario, objects)
+    first = predict_horizon(scenario, state, spec)
+    data = {"options": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+            "machine": info, "steps_before": before,
+            "step": {"objects": objects, "predicted_horizon": first,
+                     "hand_pos": state.hand_pos.tolist(), "hand_vel": state.hand_vel.tolist(),
+                     "object_pos": state.object_pos.tolist(),
+                     "object_vel": state.object_vel.tolist(), "grasp": state.grasp.tolist()},
+            "solves": []}
+    for horizon in args.horizons:
+        for method in args.methods:
+            data["solves"].append(solve(scenario, state, spec, horizon, method))
+            s = data["solves"][-1]
+            print(f"T={horizon} {method:<10} {s['status']:<10} {fmt(s['wall_s'], '.1f')} s",
+                  file=sys.stderr, flush=True)
+            write_json_atomic(args.json, data)
+    write_report(args.json, report(data) + footer(info, t0))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
