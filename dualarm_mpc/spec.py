@@ -4,7 +4,9 @@ Everything here is a formula: rules are written in the text syntax with placehol
 over the arms, any other placeholder over the objects of the sequential step, distinct placeholders
 taking distinct objects) and expanded to the objects at hand. The encoder and the evaluator both
 consume these same formulas. Atoms: ``eta[i,j]`` — hand i (1 = right, 2 = left) grabs object j;
-``theta[j]`` — object j is in its goal; j is the scenario's 1-based object number.
+``theta[j]`` — object j is in its goal; j is the scenario's 1-based object number. The skeleton
+search's relaxations of a specification (which objects a plan may leave untouched, the rule
+instances a bound keeps) are here too: they are statements about the rules, not about the search.
 """
 
 from __future__ import annotations
