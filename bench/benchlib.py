@@ -30,16 +30,18 @@ from dualarm_mpc.solver import BACKENDS, StandardForm, installed_backends
 # --- command line ------------------------------------------------------------------------------
 
 
+def parse_numbers(text: str) -> list[int]:
+    """``12-17`` (a range) or ``12,14,16`` (a list; one number is a list of one)."""
+    if "-" in text:
+        lo, hi = (int(v) for v in text.split("-"))
+        return list(range(lo, hi + 1))
+    return [int(v) for v in text.split(",")]
+
+
 def parse_seeds(text: str) -> list[int]:
     """``0-9`` (a range), ``0,3,7`` (a list) or ``10`` (a count: seeds 0..9); never empty."""
     try:
-        if "-" in text:
-            lo, hi = (int(v) for v in text.split("-"))
-            seeds = list(range(lo, hi + 1))
-        elif "," in text:
-            seeds = [int(v) for v in text.split(",")]
-        else:
-            seeds = list(range(int(text)))
+        seeds = parse_numbers(text) if "-" in text or "," in text else list(range(int(text)))
     except ValueError as err:
         raise argparse.ArgumentTypeError(f"expected 0-9, 0,3,7 or a count, got {text!r}") from err
     if not seeds:

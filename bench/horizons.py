@@ -30,27 +30,23 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from benchlib import fmt, footer, machine, table, write_json_atomic, write_report
+import numpy as np
+from benchlib import fmt, footer, machine, parse_numbers, table, write_json_atomic, write_report
+from solvers import METHODS, solve_one
 from table2 import SCENARIO, parse_row
 
-from dualarm_mpc.horizon import solve_step, solver_options
+from dualarm_mpc.horizon import solver_options
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.search import search_step
 from dualarm_mpc.sequential import at_rest_in_goal, plan, predict_horizon, select_objects
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.spec import specification
-
-METHODS = {"search": search_step, "monolithic": solve_step}
 
 
 def parse_horizons(text: str) -> list[int]:
     """``12-17`` (a range) or ``12,14,16`` (a list)."""
     try:
-        if "-" in text:
-            lo, hi = (int(v) for v in text.split("-"))
-            return list(range(lo, hi + 1))
-        return [int(v) for v in text.split(",")]
+        return parse_numbers(text)
     except ValueError as err:
         raise argparse.ArgumentTypeError(f"expected 12-17 or 12,14,16, got {text!r}") from err
 
@@ -65,7 +61,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--time-limit", type=float, default=60.0, help="seconds per solve")
     p.add_argument("--plan-time-limit", type=float, default=30.0,
                    help="seconds per horizon for the steps before (bench/table2.py's)")
-    p.add_argument("--methods", nargs="+", choices=list(METHODS), default=list(METHODS))
+    p.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     p.add_argument("--json", type=Path, default=Path("bench/results/horizons.json"))
     args = p.parse_args(argv)
     if args.step < 1:
@@ -102,14 +98,13 @@ def step_start(args: argparse.Namespace) -> tuple[State, list[dict]]:
 
 
 def solve(scenario, state: State, spec, horizon: int, method: str) -> dict:
-    t0, cpu0 = time.perf_counter(), time.process_time()
-    res = METHODS[method](scenario, state, spec, horizon)
-    has_plan = res.status.has_solution
-    return {"horizon": horizon, "method": method, "status": res.status.value,
-            "cost": res.cost if has_plan else None,
-            "bound": res.bound if math.isfinite(res.bound) else None,  # none: no plan at all
-            "gap": float(res.gap) if has_plan else None, "wall_s": time.perf_counter() - t0,
-            "cpu_s": time.process_time() - cpu0}
+    """One horizon by one method (bench/solvers.py's solve, on the scenario's backend), its
+    gap derived from cost and bound."""
+    r = solve_one(scenario, state, spec, horizon, scenario.solver.backend, method)
+    bound = r["bound"] if math.isfinite(r["bound"]) else None  # none: no plan at all
+    cost = r["cost"]
+    gap = None if cost is None or bound is None else (cost - bound) / max(abs(cost), 1e-12)
+    return {"horizon": horizon, "method": method, **r, "bound": bound, "gap": gap}
 
 
 def report(data: dict) -> str:
@@ -132,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     info = machine()
     state, before = step_start(args)
     scenario = scenario_for(args, args.time_limit)
-    remaining = [j for j in range(scenario.n_objects) if not at_rest_in_goal(scenario, state)[j]]
+    remaining = np.flatnonzero(~at_rest_in_goal(scenario, state)).tolist()
     if not remaining:
         raise SystemExit(f"every object is delivered before step {args.step}")
     objects = select_objects(scenario, state, remaining)
