@@ -30,6 +30,11 @@ from dualarm_mpc.solver import BACKENDS, StandardForm, installed_backends
 # --- command line ------------------------------------------------------------------------------
 
 
+def options_json(args: argparse.Namespace) -> dict:
+    """The command line's options as the JSON records keep them (paths as text)."""
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+
+
 def parse_numbers(text: str) -> list[int]:
     """``12-17`` (a range) or ``12,14,16`` (a list; one number is a list of one)."""
     if "-" in text:

@@ -50,6 +50,7 @@ from benchlib import (
     fmt,
     footer,
     machine,
+    options_json,
     parse_seeds,
     table,
     write_json_atomic,
@@ -289,7 +290,7 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
 def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
                complete: bool) -> None:
     """Written after every run (``complete`` false until the last), atomically."""
-    options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    options = options_json(args)
     data = {"scenario": SCENARIO, "m_o": M_O, "n_o": N_O, "options": options, "machine": info,
             "complete": complete, "summary": [summarize(records, rule) for rule in args.rules],
             "runs": records}

@@ -31,7 +31,16 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from benchlib import fmt, footer, machine, parse_numbers, table, write_json_atomic, write_report
+from benchlib import (
+    fmt,
+    footer,
+    machine,
+    options_json,
+    parse_numbers,
+    table,
+    write_json_atomic,
+    write_report,
+)
 from solvers import METHODS, solve_one
 from table2 import SCENARIO, parse_row
 
@@ -133,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     objects = select_objects(scenario, state, remaining)
     spec = specification(scenario, objects)
     first = predict_horizon(scenario, state, spec)
-    data = {"options": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+    data = {"options": options_json(args),
             "machine": info, "steps_before": before,
             "step": {"objects": objects, "predicted_horizon": first,
                      "hand_pos": state.hand_pos.tolist(), "hand_vel": state.hand_vel.tolist(),

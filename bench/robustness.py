@@ -85,6 +85,7 @@ from benchlib import (
     fmt,
     footer,
     machine,
+    options_json,
     parse_seeds,
     run_tasks,
     table,
@@ -592,14 +593,10 @@ def report(records: list[dict], options: dict) -> str:
 # --- output ------------------------------------------------------------------------------------
 
 
-def options_of(args: argparse.Namespace) -> dict:
-    return {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
-
-
 def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
                complete: bool) -> None:
     """Written after every run (``complete`` false until the last), atomically."""
-    data = {"scenario": SCENARIO, "options": options_of(args), "machine": info,
+    data = {"scenario": SCENARIO, "options": options_json(args), "machine": info,
             "complete": complete, "summary": [summarize(records, r) for r in args.rules],
             "runs": records}
     write_json_atomic(path, data)
@@ -632,7 +629,7 @@ def main(argv: list[str] | None = None) -> int:
         progress.advance(run_line(k, len(tasks), record))
         records = [r for r in done if r is not None]
         write_json(args.json, args, records, info, complete=k == len(tasks))
-    text = report(records, options_of(args)) + footer(info, t0)
+    text = report(records, options_json(args)) + footer(info, t0)
     write_report(args.json, text)
     bad = any(r["status"] != "ok" or r["missed"] for r in records)
     return 1 if bad else 0

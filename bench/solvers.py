@@ -32,7 +32,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from benchlib import fmt, machine, parse_seeds, table, write_json_atomic, write_report
+from benchlib import fmt, machine, options_json, parse_seeds, table, write_json_atomic, write_report
 from table2 import SCENARIO, parse_row, step_starts
 
 from dualarm_mpc.horizon import HorizonProgram, solve_step
@@ -167,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         data = json.loads(args.summarize.read_text())
         print(report(data["solves"], argparse.Namespace(**data["options"])))
         return 0
-    head = {"options": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+    head = {"options": options_json(args),
             "machine": machine()}
     solves: list[dict] = []
     for m_o, n_o in args.rows:

@@ -47,6 +47,7 @@ from benchlib import (
     fmt,
     footer,
     machine,
+    options_json,
     parse_seeds,
     run_tasks,
     table,
@@ -364,7 +365,7 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
 def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: dict,
                complete: bool) -> None:
     """Written after every run (``complete`` false until the last), atomically."""
-    options = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    options = options_json(args)
     data = {"scenario": SCENARIO, "options": options, "machine": info, "complete": complete,
             "summary": summary_rows(records), "runs": records}
     write_json_atomic(path, data)

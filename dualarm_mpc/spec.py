@@ -336,7 +336,8 @@ def untouchable(spec: Specification, state: State, delivered: Iterable[int]) -> 
     untouched: none is held now, and every rule instance that mentions one is TRUE once their η
     are FALSE at every step. Untouching them keeps the hands' motion, hence the cost, and every
     other object's motion, hence φ_task."""
-    outside = [j for j in spec.objects if j not in set(delivered)]
+    delivered = set(delivered)
+    outside = [j for j in spec.objects if j not in delivered]
     candidates = {j for j in outside if not state.grasp[:, j].any()}
     known = {Atom("eta", (i, j + 1)): False for i in (1, 2) for j in candidates}
     numbers = {j + 1 for j in candidates}
