@@ -3,17 +3,45 @@
 Rules are common sense kept across tasks (§I-B), so a rule that cannot hold together with a new
 task must be caught before the robot moves, and named. Each object is checked on its own: a
 one-object step from the current state — deliver it, under every rule instance over that object
-alone — at the largest horizon. For the paper's rules feasibility is monotone in T
-(:meth:`Specification.monotone_in_horizon`), so the largest horizon decides every smaller one
-(for other rules, every horizon is tried).
-These programs carry no cost: HiGHS stops at the first solution (tens of milliseconds), and only
-a conflict takes an infeasibility proof (about a second).
+alone — at the largest horizon; then the first sequential step as a whole. These programs carry
+no cost: HiGHS stops at the first solution (tens of milliseconds), and only a conflict takes an
+infeasibility proof (about a second).
 
-For an object no plan can deliver, a deletion filter finds a minimal set of rules in conflict with
-its delivery (drop any one and it is deliverable), and :func:`_reason` says why in plain words:
-the geometry (a goal beyond the hands' reach) and what each rule forbids. Objects that conflict
-only together (a rule over two objects, two objects for one small goal) show in the joint check
-of the first sequential step.
+A conflict is reported only with a proof: every program whose infeasibility is reported is a
+*relaxation* of the real one — the step that would deliver the objects named, from this state,
+at some horizon up to ``solver.max_horizon`` — it may drop constraints, never add one:
+
+* **One object j** (:func:`_check_object`): the model over the hands and j alone, whose rows are
+  the real step's rows over these variables (other objects enter the model only through the sums
+  of (14)–(15), which fewer objects only loosen); φ_task "j delivered", which every step
+  delivering j implies; and the rule instances whose atoms all name j (:func:`spec.confined`).
+  An instance naming another object is dropped, never handed to the encoder, which would read
+  that object's atoms as constants (η false, θ its value now) — an instance such as ``F
+  eta[1,1]`` or ``F theta[1] | …`` would then be false in object 2's program although a step
+  over both can satisfy it. A plan of the real step, cut down to the hands and j, is a plan of
+  this program. When one step holds the whole task (m_o = n_o, every object left), that step
+  delivers j, so a conflict here proves the task has no plan; with m_o < n_o it proves that no
+  step from this state delivers j.
+* **Who holds it** (:func:`_cases`): the one-object program is solved as three restrictions —
+  hand 2 never holds j after now, hand 1 never does, both do at some time — whose plans together
+  are exactly its plans; it is infeasible when all three are.
+* **Horizons** (:func:`_feasible`): where feasibility is monotone in T for the program itself
+  (:meth:`Specification.monotone_in_horizon`, on the relaxed rules), the largest horizon decides
+  every smaller one; otherwise every horizon from 1 up is tried, each against the real step at
+  the same horizon.
+* **The minimal rule set** (:func:`_minimal`, a deletion filter): each program it solves is the
+  same program with fewer rules, hence a relaxation too, and the set it keeps is one proven
+  infeasible: drop any one of its rules and the relaxed program has a plan.
+* **"Never held"** (the message only): the same program with the rules of the minimal set, no
+  task and "a hand holds j at some time" added; infeasible, it proves those rules forbid every
+  grasp of j in every step that holds j.
+* **The first step** (joint check): Algorithm 1's first step, its objects and m_o, with the rule
+  instances naming objects outside it dropped as above (a later step may hold those objects).
+  Objects that conflict only together (a rule over two objects, two objects for one small goal)
+  show here.
+
+For an object no plan can deliver, :func:`_reason` says why in plain words: the geometry (a goal
+beyond the hands' reach) and what each rule of the minimal set forbids.
 """
 
 from __future__ import annotations
@@ -25,12 +53,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from dualarm_mpc.horizon import HorizonProgram, solver_options
-from dualarm_mpc.ltl import And, Eventually, Formula, Or, eta
+from dualarm_mpc.ltl import TRUE, And, Eventually, Formula, Or, eta
 from dualarm_mpc.mld import Rect, State, target_box
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.sequential import at_rest_in_goal, select_objects
 from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import Specification, rule_formulas, specification
+from dualarm_mpc.spec import Specification, confined, rule_formulas, specification
 
 JOINT_TIME_LIMIT_S = 20.0  # for the first step's program; beyond, "undecided"
 
@@ -84,7 +112,7 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
                       if v is Status.TIME_LIMIT)
     if joint and todo and not conflicts and not undecided:
         objects = select_objects(scenario, state, todo)
-        spec = specification(scenario, objects, rules=named)
+        spec = confined(specification(scenario, objects, rules=named))
         quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s,
                                                               JOINT_TIME_LIMIT_S))
         status = _feasible(scenario, state, spec, quick)
@@ -115,9 +143,10 @@ def _feasible(scenario: Scenario, state: State, spec: Specification,
 
 def _cases(spec: Specification) -> list[tuple[Specification, np.ndarray | None]]:
     """A one-object program split by who holds the object: hand 1 alone (or neither), hand 2
-    alone, both at some time (a hand-over). Every plan is in one of them, and each proves
-    infeasible much faster than the whole (§V-C, rule 1, T = 40: 0.04, 0.04 and 0.07 s of CPU
-    against 0.84 s). Steps of several objects stay whole."""
+    alone, both at some time (a hand-over). Every plan is in one of them (``allowed`` bounds η
+    from step 1 on; the grasp now is fixed in all three), and each proves infeasible much faster
+    than the whole (§V-C, rule 1, T = 40: 0.04, 0.04 and 0.07 s of CPU against 0.84 s). Steps of
+    several objects stay whole."""
     if len(spec.objects) != 1:
         return [(spec, None)]
     j = spec.objects[0] + 1
@@ -127,26 +156,34 @@ def _cases(spec: Specification) -> list[tuple[Specification, np.ndarray | None]]
             (both, None)]
 
 
+def _minimal(scenario: Scenario, state: State, spec: Specification,
+             options: SolveOptions) -> Specification:
+    """``spec``, proven infeasible, with a minimal set of its rules that keeps it so (a deletion
+    filter: a rule stays only if dropping it makes a plan). Rules without an instance here are
+    dropped at once: they constrain nothing."""
+    needed = [r for r in spec.rules if r[1] != TRUE]
+    for rule in list(needed):
+        rest = tuple(r for r in needed if r is not rule)
+        if _feasible(scenario, state, dataclasses.replace(spec, rules=rest),
+                     options) is Status.INFEASIBLE:
+            needed = list(rest)
+    return dataclasses.replace(spec, rules=tuple(needed))
+
+
 def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[str, Formula]],
                   options: SolveOptions) -> Conflict | Status:
     """Object j on its own: FEASIBLE, TIME_LIMIT, or the conflict with a minimal rule set."""
-    def spec(rules) -> Specification:
-        return specification(scenario, [j], m_o=1, rules=rules)
-
-    status = _feasible(scenario, state, spec(named), options)
+    spec = confined(specification(scenario, [j], m_o=1, rules=named))
+    status = _feasible(scenario, state, spec, options)
     if status is not Status.INFEASIBLE:
         return status
-    needed = list(named)
-    for rule in named:  # deletion filter: keep a rule only if dropping it makes a plan
-        rest = [r for r in needed if r is not rule]
-        if _feasible(scenario, state, spec(rest), options) is Status.INFEASIBLE:
-            needed = rest
+    needed = _minimal(scenario, state, spec, options)
     # Does any hand ever hold it under these rules? (No task: m_o = 0.)
-    held = dataclasses.replace(spec(needed), m_o=0, targets=())
-    held = dataclasses.replace(held, rules=held.rules + (
+    held = dataclasses.replace(needed, m_o=0, targets=(), rules=needed.rules + (
         ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),))
-    never_held = bool(needed) and _feasible(scenario, state, held, options) is Status.INFEASIBLE
-    names = tuple(name for name, _ in needed)
+    never_held = (bool(needed.rules)
+                  and _feasible(scenario, state, held, options) is Status.INFEASIBLE)
+    names = tuple(name for name, _ in needed.rules)
     return Conflict((scenario.task.objects[j].name,), names,
                     _reason(scenario, j, names, never_held))
 
@@ -189,19 +226,8 @@ def _beyond_reach(scenario: Scenario, j: int) -> str:
 def _joint_conflict(scenario: Scenario, state: State, spec: Specification,
                     names: tuple[str, ...], options: SolveOptions) -> Conflict:
     """The first step has no plan although each object has one: a minimal set of its rules."""
-    T = scenario.solver.max_horizon
-
-    def infeasible(rules) -> bool:
-        s = dataclasses.replace(spec, rules=tuple(rules))
-        return _feasible(scenario, state, s, options) is Status.INFEASIBLE
-
-    needed = list(spec.rules)
-    for rule in list(spec.rules):
-        rest = [r for r in needed if r is not rule]
-        if infeasible(rest):
-            needed = rest
-    rules = tuple(name for name, _ in needed)
+    rules = tuple(name for name, _ in _minimal(scenario, state, spec, options).rules)
     said = " and ".join(rules) if rules else "the bounds alone"
     return Conflict(names, rules, f"{spec.m_o} of {', '.join(names)}: no plan delivers them "
-                    f"together within {T} steps under {said}, though each one alone has a plan")
-
+                    f"together within {scenario.solver.max_horizon} steps under {said}, though "
+                    "each one alone has a plan")

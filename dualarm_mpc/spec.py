@@ -322,13 +322,24 @@ def specification(scenario: Scenario, objects: list[int], m_o: int | None = None
     )
 
 
-# --- relaxations for the skeleton search (search.py) -----------------------------------------
+# --- relaxations for the skeleton search (search.py) and the consistency check ---------------
 
 
 def objects_of(formula: Formula) -> frozenset[int]:
     """The object numbers (1-based) that the atoms of ``formula`` mention."""
     return frozenset(a.index[-1] for a in atoms(formula)
                      if a.index and isinstance(a.index[-1], int))
+
+
+def confined(spec: Specification) -> Specification:
+    """``spec`` with only the rule instances whose atoms all name its own objects: a relaxation
+    of every program over these objects or more, with the same rules, state and horizon and a
+    φ_task that implies this one's. The encoder reads an atom of an object outside its program as
+    a constant (η false, θ its value now), which a program holding that object does not: such an
+    instance is dropped, never folded."""
+    own = {j + 1 for j in spec.objects}
+    return replace(spec, rules=tuple((name, conj(i for i in instances(f) if objects_of(i) <= own))
+                                     for name, f in spec.rules))
 
 
 def untouchable(spec: Specification, state: State, delivered: Iterable[int]) -> frozenset[int]:
