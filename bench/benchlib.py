@@ -18,6 +18,7 @@ import sys
 import time
 import timeit
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -201,11 +202,12 @@ def footer(info: dict, t0: float) -> str:
 
 
 def machine() -> dict:
-    """The machine and the code measured: where ``dualarm_mpc`` was imported from, its commit and
-    uncommitted changes (None outside a git checkout, e.g. a snapshot), and its speed now
-    (:func:`calibration`)."""
+    """The machine and the code measured: when (UTC), where ``dualarm_mpc`` was imported from, its
+    commit and uncommitted changes (None outside a git checkout, e.g. a snapshot), and its speed
+    now (:func:`calibration`)."""
     package = Path(dualarm_mpc.__file__).parent
     return {
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "platform": platform.platform(), "processor": platform.processor(),
         "cpu_count": os.cpu_count(), "python": sys.version.split()[0],
         "highspy": importlib.metadata.version("highspy"),

@@ -1,0 +1,191 @@
+"""Every benchmark table of README.md and docs/*.md, regenerated from the committed records.
+
+The records are the JSON files the benches write to bench/results/: one file per invocation of a
+bench, with its options, the machine (date, cores, code, and its speed at the start by
+``benchlib.calibration``) and every run. A table lives in a Markdown file between two marker
+comments, the first naming what it shows::
+
+    <!-- report table2-m2.json -->
+    (generated: never edit by hand)
+    <!-- /report -->
+
+A file name renders that file as its bench's own report does (``--summarize``), the bench told
+by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, ``horizons``);
+``paper`` is Table II of the paper beside ours, pooled over every ``table2*.json``. Every table
+ends with the records it comes from: their date and the machine's speed.
+
+Run it (from the repository root)::
+
+    .venv/bin/python bench/report.py            # rewrite the tables
+    .venv/bin/python bench/report.py --check    # exit 1 if a committed table differs
+
+Exit status: 0 done (or, with ``--check``, every table equal), 1 a table differs (``--check``),
+2 a marker names no record or the records disagree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import re
+import sys
+from pathlib import Path
+
+from benchlib import fmt, table
+
+ROOT = Path(__file__).resolve().parent.parent
+BLOCK = re.compile(r"(<!-- report (\S+) -->\n)(.*?)(<!-- /report -->)", re.DOTALL)
+BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons")
+
+
+class RecordError(Exception):
+    """A marker that names no record, or records that disagree: one line, exit 2."""
+
+
+# --- one results file --------------------------------------------------------------------------
+
+
+def load(results: Path, name: str) -> dict:
+    path = results / name
+    if not path.is_file():
+        raise RecordError(f"{path}: no such record (a marker names it)")
+    return json.loads(path.read_text())
+
+
+def bench_of(name: str) -> str:
+    for bench in BENCHES:
+        if name.startswith(bench):
+            return bench
+    raise RecordError(f"{name}: not the record of a bench (names start with "
+                      f"{', '.join(BENCHES)})")
+
+
+def render_file(results: Path, name: str) -> str:
+    """The file's tables as its bench prints them, then where they come from."""
+    data = load(results, name)
+    bench = bench_of(name)
+    module = importlib.import_module(bench)  # closed_loop and robustness import Drake: only here
+    options = data["options"]
+    if bench == "table2":
+        text = module.report(data["runs"], argparse.Namespace(**options))
+    elif bench == "solvers":
+        text = module.report(data["solves"], argparse.Namespace(**options))
+    elif bench == "closed_loop":
+        text = module.report(data["runs"], argparse.Namespace(**options))
+    elif bench == "robustness":
+        text = module.report(data["runs"], options)
+    else:
+        text = module.report(data)
+    return text.rstrip("\n") + "\n\n" + provenance(name, data, commit=True) + "\n"
+
+
+def provenance(name: str, data: dict, commit: bool) -> str:
+    """Where a table comes from: the file, when, the machine's speed; the code's commit in docs
+    (``commit``), not in the README."""
+    m = data["machine"]
+    c = m["calibration"]
+    parts = [m.get("date", "date not recorded").replace("T", " ").replace("+00:00", " UTC"),
+             f"{m['cpu_count']} cores",
+             f"machine speed at the start (`benchlib.calibration`, lower is faster): Python loop "
+             f"{c['python_loop_s']:.3f} s, HiGHS knapsack {c['highs_knapsack_s']:.3f} s"]
+    runs = data.get("runs") or data.get("solves") or []
+    loads = [r["load_avg_1min"] for r in runs if r.get("load_avg_1min") is not None]
+    if loads:
+        parts.append(f"load average {min(loads):.1f}–{max(loads):.1f} during the runs")
+    if commit and m.get("git_commit"):
+        parts.append(f"code {m['git_commit'][:7]}" + (" with uncommitted changes"
+                                                       if m.get("git_changes") else ""))
+    if not data.get("complete", True):
+        parts.append("incomplete: the bench was stopped")
+    return f"Records: [`bench/results/{name}`](../bench/results/{name}) ({'; '.join(parts)})."
+
+
+# --- Table II against the paper ----------------------------------------------------------------
+
+
+def render_paper(results: Path) -> str:
+    """Our Table II beside the paper's, every ``table2*.json`` pooled (one run per row, rule and
+    seed: a run recorded twice is an error), counting form and skeleton search only."""
+    table2 = importlib.import_module("table2")
+    files = sorted(p.name for p in results.glob("table2*.json"))
+    runs, seen = [], {}
+    for name in files:
+        data = load(results, name)
+        for r in data["runs"]:
+            if r["task_form"] != "counting" or r["search"] != "skeleton":
+                continue
+            key = (r["m_o"], r["n_o"], r["rule"], r["seed"])
+            if key in seen:
+                raise RecordError(f"({key[0]},{key[1]}) rule {key[2]} seed {key[3]} is in both "
+                                  f"{seen[key]} and {name}: keep one")
+            seen[key] = name
+            runs.append(r)
+    header = ["(m_o,n_o)", "rule", "seeds", "verified plans", "our mean cost", "paper cost",
+              "our mean time (s)", "paper time (s)", "our mean CPU time (s)",
+              "steps proven optimal"]
+    rows = []
+    for s in table2.summary_rows(runs):
+        seeds = sorted(r["seed"] for r in runs if (r["m_o"], r["n_o"], r["rule"])
+                       == (s["m_o"], s["n_o"], s["rule"]))
+        rows.append([f"({s['m_o']},{s['n_o']})", str(s["rule"]), seed_text(seeds),
+                     f"{s['ok']}/{s['runs']}", fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]),
+                     fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".3g"),
+                     fmt(s["mean_cpu_time_s"], ".1f"), f"{s['steps_optimal']}/{s['steps']}"])
+    sources = [provenance(name, load(results, name), commit=False) for name in files]
+    return (table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n")
+
+
+def seed_text(seeds: list[int]) -> str:
+    """``0–9`` for a range, ``0, 3, 7`` otherwise."""
+    if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}–{seeds[-1]}"
+    return ", ".join(map(str, seeds))
+
+
+# --- the Markdown files ------------------------------------------------------------------------
+
+
+def documents(root: Path) -> list[Path]:
+    return [root / "README.md", *sorted((root / "docs").glob("*.md"))]
+
+
+def regenerate(text: str, results: Path, relative: str) -> str:
+    """``text`` with every block rendered anew; links to the records made relative to the
+    document (``relative``: the path from its folder to the repository root)."""
+    def block(match: re.Match) -> str:
+        name = match.group(2)
+        body = render_paper(results) if name == "paper" else render_file(results, name)
+        return match.group(1) + body.replace("](../", f"]({relative}") + match.group(4)
+    return BLOCK.sub(block, text)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--check", action="store_true",
+                   help="change nothing; exit 1 if a committed table differs from the records")
+    p.add_argument("--root", type=Path, default=ROOT,
+                   help="the repository to read and write (default: this one)")
+    args = p.parse_args(argv)
+    results = args.root / "bench" / "results"
+    stale = []
+    try:
+        for doc in documents(args.root):
+            old = doc.read_text()
+            new = regenerate(old, results, "" if doc.parent == args.root else "../")
+            if new == old:
+                continue
+            stale.append(doc)
+            if not args.check:
+                doc.write_text(new)
+    except RecordError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
+    for doc in stale:
+        print(f"{doc.relative_to(args.root)}: "
+              + ("differs from the records" if args.check else "rewritten"), file=sys.stderr)
+    return 1 if args.check and stale else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
