@@ -183,6 +183,8 @@ def scip(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Outc
                                    rhs=_scip_value(f.row_ub[r])))
     if f.c0:
         m.addObjoffset(float(f.c0))
+    if np.isfinite(options.cutoff):
+        m.setObjlimit(float(options.cutoff))  # nothing below it: status "infeasible"
     m.setParam("limits/time", float(options.time_limit_s))
     # SCIP's gap is |p - d| / min(|p|, |d|); ours (HiGHS, Gurobi, CPLEX) |p - d| / |p|. For
     # 0 <= d <= p, ours <= g is SCIP's <= g / (1 - g); g >= 1 asks for any solution.
@@ -226,8 +228,10 @@ def scip(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Outc
 # --- Gurobi (gurobipy) -------------------------------------------------------------------------
 
 # Gurobi's optimization status codes: 2 optimal; 3 infeasible; 4 infeasible or unbounded; 5
-# unbounded; 7-11, 13, 15-17 stopped by a limit or interrupted (13: a suboptimal solution).
+# unbounded; 6 nothing below the cutoff (our "infeasible"); 7-11, 13, 15-17 stopped by a limit
+# or interrupted (13: a suboptimal solution).
 _GUROBI = {2: Status.OPTIMAL, 3: Status.INFEASIBLE, 4: Status.UNBOUNDED, 5: Status.UNBOUNDED,
+           6: Status.INFEASIBLE,
            **dict.fromkeys((7, 8, 9, 10, 11, 13, 15, 16, 17), Status.TIME_LIMIT)}
 
 
@@ -253,6 +257,8 @@ def gurobi(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Ou
         m.Params.TimeLimit = float(options.time_limit_s)
         m.Params.MIPGap = float(options.mip_rel_gap)
         m.Params.Threads = int(options.threads)
+        if np.isfinite(options.cutoff):
+            m.Params.Cutoff = float(options.cutoff)  # nothing below it: status 6, "cutoff"
         if start is not None:
             x[start.index].Start = start.value  # Gurobi completes a partial start itself
         stop = options.interrupt
@@ -320,6 +326,8 @@ def cplex(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
         c.parameters.timelimit.set(float(options.time_limit_s))
         c.parameters.mip.tolerances.mipgap.set(float(options.mip_rel_gap))
         c.parameters.threads.set(int(options.threads))
+        if np.isfinite(options.cutoff) and mip:  # nothing below it: status 103, "infeasible"
+            c.parameters.mip.tolerances.uppercutoff.set(float(options.cutoff))
         if start is not None and mip:
             c.MIP_starts.add(cpx.SparsePair(start.index.tolist(), start.value.tolist()),
                              c.MIP_starts.effort_level.auto)

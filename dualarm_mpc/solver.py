@@ -81,8 +81,8 @@ class SolveOptions:
     # ignore the field.
     small_trees: bool = False
     # Only solutions below this objective are wanted: a program with none ends "infeasible",
-    # which here means "nothing below the cutoff". HiGHS prunes by it (objective_bound); other
-    # backends ignore it and return their optimum, which is then at or above it.
+    # which here means "nothing below the cutoff". Every backend prunes by it: HiGHS's
+    # objective_bound, SCIP's objective limit, Gurobi's Cutoff, CPLEX's upper cutoff.
     cutoff: float = np.inf
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)

@@ -1,5 +1,5 @@
-"""``--solver NAME`` on the command line: a plan with every installed backend (the same cost as
-HiGHS), and one clear line for a solver that is unknown or not installed."""
+"""``--solver NAME`` on the command line: a plan with every installed backend (solved by it, at
+the same cost as HiGHS), and one clear line for a solver that is unknown or not installed."""
 
 from __future__ import annotations
 
@@ -9,7 +9,9 @@ import json
 import pytest
 from test_backends import EVERY
 
+from dualarm_mpc import backends
 from dualarm_mpc.cli import main
+from dualarm_mpc.solver import BACKENDS
 
 SCENARIO = """\
 name: cli_solvers
@@ -42,10 +44,19 @@ def highs_cost(tmp_path_factory) -> float:
 @pytest.mark.parametrize("backend", EVERY)
 @pytest.mark.parametrize("search", ["skeleton", "monolithic"])
 def test_plan_with_every_installed_solver(scenario, tmp_path, backend, search,
-                                          highs_cost) -> None:
+                                          highs_cost, monkeypatch) -> None:
+    solved_by = []  # the backend of each solve the plan made, each still the real solve
+
+    def counted(name: str):
+        real = getattr(backends, name)
+        return lambda *args: (solved_by.append(name), real(*args))[1]
+
+    for name in BACKENDS:
+        monkeypatch.setattr(backends, name, counted(name))
     out = tmp_path / "plan.json"
     assert main(["plan", str(scenario), "--solver", backend, "--search", search,
                  "--out", str(out)]) == 0
+    assert solved_by and set(solved_by) == {backend}
     assert json.loads(out.read_text())["total_cost"] == pytest.approx(highs_cost, rel=2e-4)
 
 

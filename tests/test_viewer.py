@@ -2,7 +2,8 @@
 and the live Meshcat of ``dualarm-mpc simulate --meshcat``.
 
 The browser test uses Debian's ``chromium`` and ``chromium-driver`` (``.ci/run`` installs them),
-driven by selenium; where either is missing it is skipped, with the reason.
+driven by selenium; where either is missing it is skipped with the reason, except under CI, where
+it fails (conftest.py).
 """
 
 from __future__ import annotations
