@@ -1,5 +1,6 @@
 """Interrupts lose nothing: a stop request ends planning with the steps completed so far, marked
-partial and still verified step by step; Ctrl-C on the command line does the same, in one line."""
+partial and still verified step by step; Ctrl-C on the command line does the same, in one line,
+and the command has exited within STOP_S of it."""
 
 from __future__ import annotations
 
@@ -18,6 +19,20 @@ from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.sequential import plan
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.verify import verify
+
+# Ctrl-C to exit, everything written: about 1 s (plan) and 0.5 s (simulate) here, idle.
+STOP_S = 10.0
+
+
+def ctrl_c(proc: subprocess.Popen) -> tuple[str, str]:
+    """SIGINT to ``proc``, and its stdout and stderr once it exited, within STOP_S."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        return proc.communicate(timeout=STOP_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"still running {STOP_S:g} s after Ctrl-C")
 
 
 def test_a_stop_after_the_first_step_returns_it_as_a_partial_plan() -> None:
@@ -48,8 +63,7 @@ def test_ctrl_c_during_plan_writes_the_steps_so_far(tmp_path) -> None:
     for line in proc.stdout:  # the first step's line: its number in the first column
         if line.split() and line.split()[0] == "1":
             break
-    proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=120)
+    stdout, stderr = ctrl_c(proc)
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr
     assert "interrupted" in stderr
@@ -68,8 +82,7 @@ def test_ctrl_c_during_simulate_writes_the_summary_and_replay(tmp_path) -> None:
     for line in proc.stdout:  # a replan line: the simulated time in the first column
         if line.split() and line.split()[0].replace(".", "", 1).isdigit():
             break
-    proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=120)
+    stdout, stderr = ctrl_c(proc)
     assert proc.returncode == 130, stderr
     assert "Traceback" not in stderr and "interrupted at t =" in stderr
     data = json.loads(summary.read_text())
