@@ -191,6 +191,12 @@ class Encoder:
         if key in self._truth:
             return self._truth[key]
         T = self.T
+        if isinstance(f, Always | Eventually | Until | Release) and k < T and \
+                (f, k + 1) not in self._truth:
+            # the recursions reach k + 1 first: take the suffix from T back, so that the Python
+            # stack is not T deep (solver.max_horizon allows 1000)
+            for t in range(T, k, -1):
+                self._value(f, t)
         if isinstance(f, Const):
             v = ONE if f.value else ZERO
         elif isinstance(f, Atom):

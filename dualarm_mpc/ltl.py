@@ -59,6 +59,7 @@ __all__ = [
     "parse",
     "partial",
     "placeholders",
+    "size",
     "substitute",
     "theta",
 ]
@@ -595,6 +596,21 @@ def atoms(f: Formula) -> frozenset[Atom]:
 
     _map_atoms(f, visit)
     return frozenset(found)
+
+
+def size(f: Formula) -> int:
+    """The number of nodes of ``f`` (operators, atoms, constants)."""
+    count, stack = 0, [f]
+    while stack:
+        g = stack.pop()
+        count += 1
+        if isinstance(g, And | Or):
+            stack += g.args
+        elif isinstance(g, Until | Release | Implies):
+            stack += (g.lhs, g.rhs)
+        elif not isinstance(g, Atom | Const):
+            stack.append(g.arg)
+    return count
 
 
 def placeholders(f: Formula) -> frozenset[str]:

@@ -7,13 +7,16 @@ A scenario file is read into these dataclasses; every field can then be overridd
 mapping (the CLI's ``--set``), whose keys may be paths in the form errors are reported in
 (``solver.time_limit_s: 5``, ``objects[3].position: [0.1, 0.2]``). Any bad file or value raises
 :class:`ScenarioError` naming the field, e.g. ``objects[3].position[1]: expected a number, got
-'abc'``. Numbers are read as YAML 1.2 reads them (``1e-3`` is a number, not text).
+'abc'``. Text is read by YAML 1.2's core schema (``yamlcore``). Every number field carries its
+:class:`Range` (docs/scenarios.md lists them), checked before anything else; the caps
+(``MAX_*``) bound the work a scenario can ask for.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
 import re
 import reprlib
@@ -24,18 +27,53 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from dualarm_mpc import yamlcore
 from dualarm_mpc.ltl import LTLSyntaxError, parse
 
 BUILTIN = ("table1_vc", "table1_vd")
-MAX_RANDOM_OBJECTS = 1000  # random_objects.count; more would only fill memory
-MAX_HORIZON = 1000  # solver.max_horizon; the MILP of a longer horizon is far out of reach
 SOLVER_BACKENDS = ("highs", "scip", "gurobi", "cplex")  # solver.BACKENDS, without importing it
+
+# Caps on the work a scenario can ask for (docs/scenarios.md, "Caps"), each checked on loading.
+# Objects: `plan` of 200 objects takes 47 s on 2 cores ((m_o, n_o) = (2, 4)) and its consistency
+# check 12 s, growing with the count; 2,000 would take the better part of an hour.
+MAX_OBJECTS = 200
+MAX_HORIZON = 1000  # solver.max_horizon: the per-object check builds a program at this horizon
+MAX_RULE_CHARS = 10_000  # one rule's text; the paper's rules have 40 to 60 characters
+# task_form: subsets is a disjunction of C(n, m_o) conjunctions in every program of a step
+MAX_TASK_SUBSETS = 1000
 
 
 class ScenarioError(ValueError):
     """A scenario file or override has a bad field; the message starts with the field's path."""
+
+
+@dataclass(frozen=True)
+class Range:
+    """The values a number field takes: ``lo`` to ``hi``, ``lo`` itself excluded if ``lo_open``
+    (a number in a list or mapping field: each of them)."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+
+    def check(self, value: float, path: str) -> None:
+        if not ((value > self.lo if self.lo_open else value >= self.lo) and value <= self.hi):
+            raise ScenarioError(f"{path}: must be {self}, got {_show(value)}")  # NaN too
+
+    def __str__(self) -> str:
+        return f"{'>' if self.lo_open else '>='} {_number(self.lo)} and <= {_number(self.hi)}"
+
+
+def _in(lo: float, hi: float, lo_open: bool = False) -> dict:
+    """A field's metadata: its :class:`Range`."""
+    return {"range": Range(lo, hi, lo_open)}
+
+
+# Coordinates on the table, metres: the arms reach 2.2 m from their bases (models/dual_scara.sdf)
+COORDINATE = _in(-10.0, 10.0)
+# A grasp box's half size, metres: a few millimetres up to a hand range's half width
+GRASP_HALF_SIZE = _in(0.0, 1.0, lo_open=True)
 
 
 @dataclass
@@ -43,28 +81,26 @@ class ObjectSpec:
     """One object: where it starts, which goal it belongs to, the grasp box H_ij of eq. (11)."""
 
     name: str = ""
-    position: list[float] = field(default_factory=list)  # required: no default place
+    position: list[float] = field(default_factory=list, metadata=COORDINATE)  # required
     goal: str = ""
-    grasp_half_size: float = 0.05
+    grasp_half_size: float = field(default=0.05, metadata=GRASP_HALF_SIZE)
 
 
 @dataclass
 class RandomObjects:
     """§V-D: ``count`` objects uniform in ``region`` from ``seed``; goals assigned round-robin."""
 
-    count: int = 10
-    region: list[float] = field(default_factory=lambda: [-0.25, 0.25, -0.25, 0.25])
-    grasp_half_size: float = 0.05
+    count: int = field(default=10, metadata=_in(1, MAX_OBJECTS))
+    region: list[float] = field(default_factory=lambda: [-0.25, 0.25, -0.25, 0.25],
+                                metadata=COORDINATE)
+    grasp_half_size: float = field(default=0.05, metadata=GRASP_HALF_SIZE)
     # Objects closer than this (per axis) are drawn again. 0 is the paper's plain uniform draw
     # (points, for planning); physical boxes need at least their size, or they start
     # interpenetrating and the simulation flings them apart.
-    min_separation: float = 0.0
+    min_separation: float = field(default=0.0, metadata=_in(0.0, 1.0))
 
     def validate(self) -> None:
         _box(self.region, "random_objects.region")
-        if not 1 <= self.count <= MAX_RANDOM_OBJECTS:
-            raise ScenarioError(f"random_objects.count: must be 1..{MAX_RANDOM_OBJECTS}, got "
-                                f"{self.count}")
         if self.min_separation > 0:  # how many points that far apart (per axis) fit the region
             fit = [(hi - lo) / self.min_separation for lo, hi in (self.region[:2],
                                                                   self.region[2:])]
@@ -73,9 +109,6 @@ class RandomObjects:
             if self.count > room:
                 raise ScenarioError(f"random_objects: {self.count} objects {self.min_separation} "
                                     f"m apart do not fit in {self.region} (at most {room})")
-        if self.grasp_half_size <= 0:
-            raise ScenarioError(f"random_objects.grasp_half_size: must be positive, got "
-                                f"{self.grasp_half_size}")
 
 
 @dataclass
@@ -83,20 +116,21 @@ class SolverOptions:
     """Options of one MILP solve (docs/scenarios.md, the `solver:` fields)."""
 
     backend: str = "highs"  # or "scip", "gurobi", "cplex" where installed (solver.py)
-    time_limit_s: float = 30.0
-    mip_rel_gap: float = 1e-4
-    threads: int = 1
-    max_horizon: int = 40
+    time_limit_s: float = field(default=30.0, metadata=_in(0.0, 86_400.0, lo_open=True))
+    mip_rel_gap: float = field(default=1e-4, metadata=_in(0.0, 1.0))
+    threads: int = field(default=1, metadata=_in(1, 64))
+    max_horizon: int = field(default=40, metadata=_in(1, MAX_HORIZON))
     # "skeleton": the exact search over which objects and which hand (search.py);
     # "monolithic": the whole step as one MILP, the reference.
     search: str = "skeleton"
     # Skeleton nodes where both hands may hold one object: "auto" only for objects that neither
     # hand can deliver alone, "always" (exact against the monolithic MILP), "never".
     handover: str = "auto"
-    workers: int = 2  # threads solving the skeleton search's independent programs at once
+    # threads solving the skeleton search's independent programs at once
+    workers: int = field(default=2, metadata=_in(1, 64))
     # Closed loop: wall time a replan may hold the simulation (default 0.4 Δt); past it the
     # robot follows the plan in force while the search goes on.
-    replan_budget_s: float | None = None
+    replan_budget_s: float | None = field(default=None, metadata=_in(0.0, 3600.0))
 
     def validate(self) -> None:
         if self.backend not in SOLVER_BACKENDS:
@@ -108,32 +142,22 @@ class SolverOptions:
         if self.handover not in ("auto", "always", "never"):
             raise ScenarioError(f"solver.handover: expected 'auto', 'always' or 'never', got "
                                 f"{self.handover!r}")
-        if self.time_limit_s <= 0:
-            raise ScenarioError("solver.time_limit_s: must be positive")
-        if self.mip_rel_gap < 0:
-            raise ScenarioError(f"solver.mip_rel_gap: must be >= 0, got {self.mip_rel_gap}")
-        for key in ("max_horizon", "threads", "workers"):
-            if getattr(self, key) < 1:
-                raise ScenarioError(f"solver.{key}: must be >= 1, got {getattr(self, key)}")
-        if self.max_horizon > MAX_HORIZON:
-            raise ScenarioError(f"solver.max_horizon: at most {MAX_HORIZON}, got "
-                                f"{self.max_horizon}")
 
 
 @dataclass
 class Event:
     """An environment change in closed loop: at ``time`` move an object or a goal."""
 
-    time: float = 0.0
+    time: float = field(default=0.0, metadata=_in(0.0, 1e6))
     kind: str = "move_object"  # or "move_goal"
     target: str = ""  # object name or goal name
-    position: list[float] = field(default_factory=list)  # move_object: new [x, y]
-    box: list[float] = field(default_factory=list)  # move_goal: new [xmin, xmax, ymin, ymax]
+    # move_object: new [x, y]
+    position: list[float] = field(default_factory=list, metadata=COORDINATE)
+    # move_goal: new [xmin, xmax, ymin, ymax]
+    box: list[float] = field(default_factory=list, metadata=COORDINATE)
 
     def validate(self, path: str, task: Task) -> None:
         """``path``: ``events[e]``; the target must be one of ``task``'s objects or goals."""
-        if self.time < 0:
-            raise ScenarioError(f"{path}.time: must be >= 0, got {self.time}")
         if self.kind == "move_object":
             if self.target not in {o.name for o in task.objects}:
                 raise ScenarioError(f"{path}.target: no object named {self.target!r}")
@@ -151,21 +175,21 @@ class Robot:
     """The two arms (Table I): Δt, the hands' range and start, the arm bases, the bounds on |v|
     and |u|, eq. (16)'s gap."""
 
-    dt: float = 1.0
-    workspace: list[float] = field(default_factory=lambda: [-0.9, 0.9, 0.0, 0.9])  # hand range
-    hand_start: list[list[float]] = field(default_factory=lambda: [[0.1, 0.0], [-0.1, 0.0]])
+    # A step spans at least five of the simulation's 2 ms steps
+    dt: float = field(default=1.0, metadata=_in(0.01, 10.0))
+    workspace: list[float] = field(default_factory=lambda: [-0.9, 0.9, 0.0, 0.9],
+                                   metadata=COORDINATE)  # hand range
+    hand_start: list[list[float]] = field(default_factory=lambda: [[0.1, 0.0], [-0.1, 0.0]],
+                                          metadata=COORDINATE)
     # In front of the hand range, not at Table I's (±0.3, 0.3): see docs/drake.md
-    arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, -0.8], [-0.3, -0.8]])
-    max_speed: float = 0.2
-    max_force: float = 0.1
-    hand_gap: float = 0.1  # eq. (16): x_arm2 + hand_gap <= x_arm1
+    arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, -0.8], [-0.3, -0.8]],
+                                         metadata=COORDINATE)
+    # |v| and |u| per component; every big-M derives from them
+    max_speed: float = field(default=0.2, metadata=_in(0.0, 10.0, lo_open=True))
+    max_force: float = field(default=0.1, metadata=_in(0.0, 10.0, lo_open=True))
+    hand_gap: float = field(default=0.1, metadata=_in(0.0, 2.0))  # eq. (16)
 
     def validate(self) -> None:
-        for key in ("dt", "max_speed", "max_force"):
-            if getattr(self, key) <= 0:
-                raise ScenarioError(f"{key}: must be positive, got {getattr(self, key)!r}")
-        if self.hand_gap < 0:
-            raise ScenarioError(f"hand_gap: must be >= 0, got {self.hand_gap!r}")
         _box(self.workspace, "workspace")
         for name, points in (("hand_start", self.hand_start), ("arm_bases", self.arm_bases)):
             if len(points) != 2:
@@ -188,20 +212,13 @@ class Robot:
 class Table:
     """The simulated table and boxes (Drake only: the planner's model has neither)."""
 
-    friction: float = 0.0  # Coulomb μ of table and objects
+    friction: float = field(default=0.0, metadata=_in(0.0, 2.0))  # Coulomb μ, table and objects
     # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
     # one-step slide when τ = Δt (docs/model.md, "The one-step slide"). None: Coulomb only.
-    slide_time_constant: float | None = 1.0
-    object_size: float = 0.05
-
-    def validate(self) -> None:
-        if self.object_size <= 0:
-            raise ScenarioError(f"object_size: must be positive, got {self.object_size!r}")
-        if self.slide_time_constant is not None and self.slide_time_constant <= 0:
-            raise ScenarioError(
-                f"slide_time_constant: must be positive, got {self.slide_time_constant}")
-        if self.friction < 0:
-            raise ScenarioError(f"table_friction: must be >= 0, got {self.friction}")
+    # Below five 2 ms steps of the simulation the drag is too stiff for its solver.
+    slide_time_constant: float | None = field(default=1.0, metadata=_in(0.01, 1000.0))
+    # A box side: the fingers close on 1 cm to 20 cm (the hand hangs 0.3 m over the table)
+    object_size: float = field(default=0.05, metadata=_in(0.01, 0.2))
 
 
 @dataclass
@@ -209,26 +226,24 @@ class Task:
     """What to deliver where (goals, objects), under which rules, in sequential steps of
     (m_o, n_o), and how the planner aims and weighs its plans."""
 
-    goals: dict[str, list[float]] = field(default_factory=dict)
+    goals: dict[str, list[float]] = field(default_factory=dict, metadata=COORDINATE)
     objects: list[ObjectSpec] = field(default_factory=list)
     random_objects: RandomObjects | None = None
-    seed: int = 0
+    seed: int = field(default=0, metadata=_in(0, 2**32 - 1))
     rule: int = 2
-    m_o: int = 2  # objects delivered per sequential step (eq. 13)
-    n_o: int = 6  # objects considered per sequential step
+    m_o: int = field(default=2, metadata=_in(1, MAX_OBJECTS))  # delivered per step (eq. 13)
+    n_o: int = field(default=6, metadata=_in(1, MAX_OBJECTS))  # considered per step
     delivery: str = "reach"  # "reach" (paper, ◇θ) or "rest" (in the goal and at rest at T)
     task_form: str = "counting"  # "counting" (Σ ev_j ≥ m_o) or "subsets" (eq. 13 literally)
     rules: list[str] = field(default_factory=list)  # extra LTL rules, text syntax
-    state_weight: float = 0.0  # optional ‖v_hand‖₁ penalty next to cost (17)
+    # optional ‖v_hand‖₁ penalty next to cost (17), whose terms are metres
+    state_weight: float = field(default=0.0, metadata=_in(0.0, 100.0))
     pruning: bool = True
-    goal_margin: float = 0.0  # the planner aims this far inside each goal box (closed loop)
+    # the planner aims this far inside each goal box (closed loop)
+    goal_margin: float = field(default=0.0, metadata=_in(0.0, 1.0))
     goal_slots: bool = False  # aim each object at its own column of its goal (closed loop)
 
     def validate(self) -> None:
-        if self.goal_margin < 0:
-            raise ScenarioError(f"goal_margin: must be >= 0, got {self.goal_margin}")
-        if self.seed < 0:
-            raise ScenarioError(f"seed: must be >= 0, got {self.seed}")
         if self.random_objects is not None:
             self.random_objects.validate()
         if not self.goals:
@@ -240,6 +255,9 @@ class Task:
                                     f"goals.{name}")
         if not self.objects:
             raise ScenarioError("objects: no objects (give objects or random_objects)")
+        if len(self.objects) > MAX_OBJECTS:
+            raise ScenarioError(f"objects: {len(self.objects):,} objects, at most {MAX_OBJECTS} "
+                                "(docs/scenarios.md, Caps)")
         names = set()
         for j, o in enumerate(self.objects):
             if not o.position:
@@ -248,8 +266,6 @@ class Task:
             if o.goal not in self.goals:
                 raise ScenarioError(f"objects[{j}].goal: {o.goal!r} is not a goal (goals: "
                                     f"{', '.join(self.goals)})")
-            if o.grasp_half_size <= 0:
-                raise ScenarioError(f"objects[{j}].grasp_half_size: must be positive")
             if not o.name or o.name in names:
                 raise ScenarioError(f"objects[{j}].name: missing or repeated name {o.name!r}")
             names.add(o.name)
@@ -269,7 +285,16 @@ class Task:
                                 f"{self.task_form!r}")
         if not 1 <= self.m_o <= self.n_o:
             raise ScenarioError(f"m_o: need 1 <= m_o <= n_o, got m_o={self.m_o}, n_o={self.n_o}")
+        subsets = math.comb(min(self.n_o, len(self.objects)), self.m_o)
+        if self.task_form == "subsets" and subsets > MAX_TASK_SUBSETS:
+            raise ScenarioError(
+                f"task_form: subsets makes φ_task a disjunction of {subsets:,} subsets (m_o = "
+                f"{self.m_o} of n_o = {self.n_o}), more than {MAX_TASK_SUBSETS:,}; use "
+                "task_form: counting (the same task) or a smaller n_o")
         for n, text in enumerate(self.rules):
+            if len(text) > MAX_RULE_CHARS:
+                raise ScenarioError(f"rules[{n}]: {len(text):,} characters, at most "
+                                    f"{MAX_RULE_CHARS:,}")
             try:
                 parse(text)
             except LTLSyntaxError as err:
@@ -294,13 +319,20 @@ class Scenario:
 
     def validate(self) -> None:
         """Check values that types alone cannot; each error names its YAML field."""
+        self.check_ranges()
         self.robot.validate()
-        self.table.validate()
         self.task.validate()
         self.solver.validate()
         for e, event in enumerate(self.events):
             event.validate(f"events[{e}]", self.task)
         self._check_reach()
+
+    def check_ranges(self) -> None:
+        """Every number in its field's :class:`Range` (before anything computes with them)."""
+        for key, path in YAML_FIELDS.items():
+            owner, name = _owner(self, path)
+            rng = _fields(type(owner))[name].metadata.get("range")
+            _check_range(getattr(owner, name), rng, key)
 
     def _check_reach(self) -> None:
         """Objects no hand can move: off the table (beyond the hand range widened by the grasp
@@ -387,21 +419,28 @@ def _convert(value, hint, path: str):
     if hint is float:
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ScenarioError(f"{path}: expected a number, got {_show(value)}")
-        if not math.isfinite(value):
-            raise ScenarioError(f"{path}: expected a finite number, got {value!r}")
-        return float(value)
+        try:
+            number = float(value)
+        except OverflowError:  # an integer of more than 308 digits
+            number = math.inf
+        if not math.isfinite(number):
+            raise ScenarioError(f"{path}: expected a finite number, got "
+                                f"{_show(yamlcore.written(value))}")
+        return number
     if hint is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ScenarioError(f"{path}: expected an integer, got {_show(value)}")
-        return value
+        return int(value)
     if hint is bool:
         if not isinstance(value, bool):
             raise ScenarioError(f"{path}: expected true or false, got {_show(value)}")
         return value
-    if hint is str:
-        if not isinstance(value, str | int | float):
-            raise ScenarioError(f"{path}: expected text, got {_show(value)}")
-        return str(value)
+    if hint is str:  # names and rules: a number as written (1e3, 010), never true or null
+        if isinstance(value, bool) or not isinstance(value, str | int | float):
+            quote = " (quote it to mean the text)" if value is None or isinstance(value, bool) \
+                else ""
+            raise ScenarioError(f"{path}: expected text, got {_show(value)}{quote}")
+        return str(yamlcore.written(value))
     raise TypeError(f"unsupported schema type {hint!r} at {path}")
 
 
@@ -421,19 +460,36 @@ def _update(current, value, hint, path: str):
             (item,) = typing.get_args(hint)
             out = list(current)
             for i, v in value.items():
-                _check_index(i, out, path)
+                i = _check_index(i, out, path)
                 out[i] = _update(out[i], v, item, f"{path}[{i}]")
             return out
     return _convert(value, hint, path)
 
 
 def _build(cls, data: dict, path: str, base=None):
-    hints = typing.get_type_hints(cls)
-    _known(data, [f.name for f in dataclasses.fields(cls)], f"{path}.")
+    hints = _hints(cls)
+    _known(data, hints, f"{path}.")
     obj = base if base is not None else cls()
     for key, value in data.items():
         setattr(obj, key, _update(getattr(obj, key), value, hints[key], f"{path}.{key}"))
     return obj
+
+
+@functools.cache
+def _hints(cls) -> dict:
+    """The field types of dataclass ``cls`` (once: a thousand objects would each ask)."""
+    return typing.get_type_hints(cls)
+
+
+@functools.cache
+def _fields(cls) -> dict[str, dataclasses.Field]:
+    return {f.name: f for f in dataclasses.fields(cls)}
+
+
+def _owner(scenario: Scenario, path: str) -> tuple[object, str]:
+    """The group of ``scenario`` holding a YAML_FIELDS path, and the field's name in it."""
+    *group, name = path.split(".")
+    return (getattr(scenario, group[0]) if group else scenario), name
 
 
 def _build_scenario(data: dict, base: Scenario | None = None) -> Scenario:
@@ -441,11 +497,28 @@ def _build_scenario(data: dict, base: Scenario | None = None) -> Scenario:
     _known(data, YAML_FIELDS, "")
     scenario = base if base is not None else Scenario()
     for key, value in data.items():
-        *group, name = YAML_FIELDS[key].split(".")
-        owner = getattr(scenario, group[0]) if group else scenario
-        hint = typing.get_type_hints(type(owner))[name]
-        setattr(owner, name, _update(getattr(owner, name), value, hint, key))
+        owner, name = _owner(scenario, YAML_FIELDS[key])
+        setattr(owner, name, _update(getattr(owner, name), value, _hints(type(owner))[name], key))
     return scenario
+
+
+def _check_range(value, rng: Range | None, path: str) -> None:
+    """``value`` (a number, or a list, mapping or dataclass of them) in its range."""
+    if dataclasses.is_dataclass(value):
+        for name, f in _fields(type(value)).items():
+            _check_range(getattr(value, name), f.metadata.get("range"), f"{path}.{name}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_range(v, rng, f"{path}[{i}]")
+    elif isinstance(value, dict):
+        for k, v in value.items():
+            _check_range(v, rng, f"{path}.{k}")
+    elif rng is not None and value is not None:
+        rng.check(value, path)
+
+
+def _number(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
 
 
 def _known(data: dict, names, prefix: str) -> None:
@@ -464,28 +537,21 @@ def _show(value) -> str:
     return _SHORT.repr(value)
 
 
-class _Loader(yaml.SafeLoader):
-    """YAML as 1.2 reads numbers: YAML 1.1 (PyYAML) reads ``1e-3`` and ``2E5`` as text."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
-)
-
 # A key of an override that names a field by its path: solver.time_limit_s, objects[0].position
 _PATH = re.compile(r"[A-Za-z_]\w*(?:\.[^.\[\]]+|\[[0-9]+\])+")
 _STEP = re.compile(r"\.([^.\[\]]+)|\[([0-9]+)\]")
 
 
 def _is_index(key) -> bool:
-    return isinstance(key, int) and not isinstance(key, bool)
+    """A key that picks a list element: ``[3]`` of a path, or a key ``3:`` (keys are text)."""
+    return isinstance(key, int) and not isinstance(key, bool) or \
+        isinstance(key, str) and key.isascii() and key.isdecimal()
 
 
-def _check_index(i: int, items: list, path: str) -> None:
-    if not 0 <= i < len(items):
+def _check_index(i: int | str, items: list, path: str) -> int:
+    if not 0 <= int(i) < len(items):
         raise ScenarioError(f"{path}[{i}]: no such element ({path} has {len(items)})")
+    return int(i)
 
 
 def _paths(data: dict) -> dict:
@@ -507,11 +573,9 @@ def _paths(data: dict) -> dict:
 
 def _yaml(text: str, where: str) -> dict:
     try:
-        data = yaml.load(text, Loader=_Loader)
-    except yaml.YAMLError as err:
-        raise ScenarioError(f"{where}: not valid YAML: {err}") from err
-    except RecursionError as err:
-        raise ScenarioError(f"{where}: nested too deeply") from err
+        data = yamlcore.load(text, where)
+    except yamlcore.YAMLInputError as err:
+        raise ScenarioError(str(err)) from None
     if data is None:
         return {}
     if not isinstance(data, dict):
@@ -540,14 +604,15 @@ def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Sce
     """Load a scenario file, apply ``overrides`` (a mapping or YAML text), then validate it."""
     path = scenario_path(name_or_path)
     try:
-        text = path.read_text(encoding="utf-8")
+        with path.open(encoding="utf-8") as file:
+            text = file.read(yamlcore.MAX_CHARS + 1)  # a longer file is refused unread
     except UnicodeDecodeError as err:
         raise ScenarioError(f"{path}: not UTF-8 text (byte {err.start} is "
                             f"{err.object[err.start]:#04x})") from err
     except OSError as err:
         raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
     data = _yaml(text, str(path))
-    _one_source_of_objects(data, drawn=False)
+    _one_source_of_objects(data, drawn=False, listed=0)
     return apply_overrides(_build_scenario(data), overrides)
 
 
@@ -558,8 +623,10 @@ def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenari
         _paths(overrides or {})
     task = scenario.task
     if overrides:
-        _one_source_of_objects(overrides, drawn=task.random_objects is not None)
+        _one_source_of_objects(overrides, drawn=task.random_objects is not None,
+                               listed=len(task.objects))
         _build_scenario(overrides, scenario)
+    scenario.check_ranges()
     if task.random_objects is not None and task.goals:
         # the objects follow from (random_objects, seed); with no goals, validate says so
         task.random_objects.validate()
@@ -568,12 +635,17 @@ def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenari
     return scenario
 
 
-def _one_source_of_objects(data: dict, drawn: bool) -> None:
-    """Objects given where random objects are drawn (``drawn``: before ``data``) would be
-    replaced by the draw."""
+def _one_source_of_objects(data: dict, drawn: bool, listed: int) -> None:
+    """Objects given where random objects are drawn would be replaced by the draw, and so would
+    the ``listed`` objects if ``data`` starts a draw; ``drawn``, ``listed``: before ``data``."""
+    if data.get("random_objects") is not None and not drawn and listed and \
+            data.get("objects") != []:
+        raise ScenarioError(f"random_objects: given while the scenario lists {listed} objects, "
+                            "which the draw would replace; give one of the two (objects: [] "
+                            "with random_objects to draw instead)")
     if "random_objects" in data:
         drawn = data["random_objects"] is not None
-    if "objects" in data and drawn:
+    if data.get("objects") and drawn:
         raise ScenarioError("objects: given while random_objects draws the objects, which would "
                             "replace them; give one of the two (random_objects: null to list "
                             "objects)")

@@ -42,6 +42,7 @@ from dualarm_mpc.ltl import (
     substitute,
     theta,
 )
+from dualarm_mpc.ltl import size as formula_size
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, ScenarioError
 
@@ -51,6 +52,10 @@ ARM_PLACEHOLDER = "i"
 # 4 object placeholders over 10 objects, with i, encode in about 2 s per program; 7 would not fit
 # in memory.
 MAX_RULE_INSTANCES = 20_000
+# Nodes of the user rules once expanded over a step's objects, together: the encoder makes a truth
+# value per node and step. The four placeholders above make 90,720 nodes; 109,440 took 18 s per
+# program at T = 40 (measured, `check`), more than the solve.
+MAX_RULE_NODES = 100_000
 
 # The paper's rules, §V-B, with weak next (docs/ltl.md: □(θ → ○θ) reads θ(k) → θ(k+1) for k < T).
 RULE_TEXT = {
@@ -76,7 +81,7 @@ def expand(rule: Formula, objects: list[int]) -> Formula:
             if arm is not None:
                 mapping[ARM_PLACEHOLDER] = arm
             instances.append(substitute(rule, mapping))
-    return conj(instances)
+    return conj(dict.fromkeys(instances))  # an instance given twice constrains once
 
 
 def instances(formula: Formula) -> tuple[Formula, ...]:
@@ -231,18 +236,26 @@ def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str
     each checked (:func:`check_rule`) before any solve."""
     rule = scenario.task.rule if rule is None else rule
     named = [(name, parse(RULE_TEXT[name])) for name in RULES[rule]]
+    seen, nodes = set(), 0
     for n, text in enumerate(scenario.task.rules):
         f = parse(text)
-        check_rule(f, scenario, f"rules[{n}]")
-        named.append((f"rules[{n}] {text}", f))
+        nodes += check_rule(f, scenario, f"rules[{n}]")
+        if nodes > MAX_RULE_NODES:
+            raise ScenarioError(
+                f"rules[{n}]: the rules up to this one expand to {nodes:,} formula nodes over the "
+                f"objects of a step, more than {MAX_RULE_NODES:,}; use fewer or shorter rules, "
+                "fewer placeholders or a smaller n_o")
+        if f not in seen:  # a rule given twice is in force once
+            seen.add(f)
+            named.append((f"rules[{n}] {text}", f))
     return named
 
 
-def check_rule(f: Formula, scenario: Scenario, where: str) -> None:
+def check_rule(f: Formula, scenario: Scenario, where: str) -> int:
     """A user rule the planner can use, else :class:`ScenarioError` naming ``where``: known
     atoms over the scenario's hands and objects, no goal atom under a negation, no more object
     placeholders than a step has objects (the rule would expand to nothing) and an expansion of
-    at most ``MAX_RULE_INSTANCES``."""
+    at most ``MAX_RULE_INSTANCES``. Returns the size of that expansion in formula nodes."""
     n = scenario.n_objects
     for atom in sorted(atoms(f), key=str):
         problem = _atom_problem(atom, n)
@@ -268,6 +281,7 @@ def check_rule(f: Formula, scenario: Scenario, where: str) -> None:
             f"{where}: expands to {size:,} instances ({len(objects)} object placeholders over "
             f"the {step} objects of a step), more than {MAX_RULE_INSTANCES:,}; use fewer "
             "placeholders or a smaller n_o")
+    return size * formula_size(f)
 
 
 _ATOMS = ("the atoms are eta[i,j] (hand i = 1 right, 2 left, grabs object j) and theta[j] "
