@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -514,3 +515,185 @@ def test_a_dt_too_short_for_the_task_is_named() -> None:
 )
 def test_random_objects_that_would_fill_memory_or_never_fit(random, prefix: str) -> None:
     assert _error({"random_objects": random}, "table1_vd").startswith(prefix)
+
+
+# --- read as written: YAML 1.2 core schema, names as text, ranges, caps (issue 37) --------------
+
+
+@pytest.mark.parametrize(
+    ("text", "value"),
+    [("010", 10), ("0x1F", 31), ("0o17", 15), ("+7", 7), ("1e1", 10.0)],
+)
+def test_numbers_by_the_yaml_1_2_core_schema(text: str, value) -> None:
+    """YAML 1.1 (PyYAML) read 010 as 8 and 1:30 as 90; 1.2 has no octal without 0o."""
+    assert parse_override(f"solver.max_horizon: {text}") == {"solver": {"max_horizon": value}}
+    if isinstance(value, int):
+        assert load_scenario("table1_vc", f"solver.max_horizon: {text}").solver.max_horizon \
+            == value
+
+
+@pytest.mark.parametrize("text", ["1:30", "yes", "no", "on", "off", "NO", "Yes", "y", "0b11",
+                                  "1_000", "2001-01-01", "=", "<<"])
+def test_yaml_1_1_forms_are_text(text: str) -> None:
+    assert parse_override(f"name: {text}") == {"name": text}
+    assert load_scenario("table1_vc", f"name: {text}").name == text
+    assert _error(f"max_speed: {text}").startswith(f"max_speed: expected a number, got {text!r}")
+
+
+def test_only_true_and_false_are_booleans() -> None:
+    assert load_scenario("table1_vc", "pruning: False").task.pruning is False
+    assert _error("pruning: yes").startswith("pruning: expected true or false, got 'yes'")
+
+
+@pytest.mark.parametrize("text", [".inf", "-.inf", ".nan", ".NaN", "1e999"])
+def test_infinities_are_refused_where_a_finite_number_is_needed(text: str) -> None:
+    assert _error(f"max_speed: {text}").startswith("max_speed: expected a finite number")
+    assert _error(f"objects[0].position[1]: {text}").startswith(
+        "objects[0].position[1]: expected a finite number")
+
+
+@pytest.mark.parametrize("name", ["NO", "1", "null", "1e3", "010", "0x1F", "true", "~", "1:30"])
+def test_names_are_the_text_as_written(tmp_path, name: str) -> None:
+    """A goal named NO was the boolean False; 1e3 was 1000.0: a key is always its text, and a
+    number naming a goal is read as written."""
+    path = tmp_path / "names.yaml"
+    quoted = name if name in ("null", "true", "~") else None
+    goal = f"'{name}'" if quoted else name
+    path.write_text(f"goals: {{{name}: [0.2, 0.4, 0.5, 0.7]}}\n"
+                    f"objects: [{{name: {goal}, position: [0.1, 0.1], goal: {goal}}}]\n"
+                    "m_o: 1\nn_o: 1\n")
+    s = load_scenario(str(path))
+    assert list(s.task.goals) == [name]
+    assert (s.task.objects[0].name, s.task.objects[0].goal) == (name, name)
+
+
+@pytest.mark.parametrize("value", ["null", "true", "~", ""])
+def test_null_or_true_as_a_name_asks_for_quotes(value: str) -> None:
+    message = _error(f"objects[0].goal: {value}")
+    assert message.startswith("objects[0].goal: expected text, got ") and "quote it" in message
+
+
+def test_a_key_that_is_a_number_picks_a_list_element() -> None:
+    """Keys are text, so ``objects: {2: ...}`` names element 2 by the text '2'."""
+    s = load_scenario("table1_vc", "objects: {2: {goal: blue}}")
+    assert s.task.objects[2].goal == "blue"
+
+
+def test_duplicate_keys_name_both_lines(tmp_path) -> None:
+    path = tmp_path / "dup.yaml"
+    path.write_text("goals:\n  red: [0.2, 0.4, 0.5, 0.7]\n  red: [0.2, 0.4, 0.6, 0.7]\n")
+    with pytest.raises(ScenarioError, match=rf"^{re.escape(str(path))}:3: duplicate key 'red' "
+                                            rf"\(first at {re.escape(str(path))}:2\)$"):
+        load_scenario(str(path))
+    assert _error("solver: {workers: 1, workers: 2}") == (
+        "override:1: duplicate key 'workers' (first at override:1)")
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("a: &x [*x]", "override:1: an alias inside the node it names"),
+        ("a: 1\n---\nb: 2", "override:2: not valid YAML: expected a single document in the "
+                            "stream, but found another document"),
+        ("? [1]\n: 2", "override:1: a key must be text, not a sequence"),
+        ("name: !!python/name:os.system x", "override:1: not valid YAML: could not determine a "
+                                            "constructor"),
+        ("<<: {dt: 2}", "<<: unknown field"),
+        ("a:\n\t- 1", "override:2: not valid YAML"),
+        ("rules: &r [G true]\nname: *r", "name: expected text, got ['G true']"),
+    ],
+)
+def test_yaml_an_adversary_writes(text: str, message: str) -> None:
+    assert _error(text).startswith(message), _error(text)
+
+
+def test_a_byte_order_mark_is_no_part_of_the_first_key(tmp_path) -> None:
+    path = tmp_path / "bom.yaml"
+    path.write_text("\ufeff" + Path(scenario_path("table1_vc")).read_text(), encoding="utf-8")
+    assert load_scenario(str(path)) == load_scenario("table1_vc")
+
+
+def test_alias_expansion_is_capped_before_anything_is_built() -> None:
+    laughs = "a0: &a0 lol\n" + "".join(
+        f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]\n" for i in range(1, 10))
+    assert _error(laughs).startswith("override:7: more than 1,000,000 characters with its "
+                                     "aliases (*name) expanded")
+    # a few aliases are fine
+    s = load_scenario("table1_vc", "goals: {red: &box [0.2, 0.5, 1.2, 1.4], blue: *box}")
+    assert s.task.goals["blue"] == s.task.goals["red"]
+
+
+def test_every_number_field_has_a_range() -> None:
+    from dualarm_mpc.scenario import Event, ObjectSpec, RandomObjects, SolverOptions
+
+    s = Scenario()
+    numeric = (int, float, int | None, float | None, list[float], list[list[float]],
+               dict[str, list[float]])
+    for cls in (type(s.robot), type(s.table), type(s.task), SolverOptions, ObjectSpec,
+                RandomObjects, Event):
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            if hints[f.name] in numeric and f.name != "rule":  # rule: a choice, 1 or 2
+                assert "range" in f.metadata, f"{cls.__name__}.{f.name}"
+
+
+def test_the_docs_table_states_the_ranges_of_the_code() -> None:
+    """docs/scenarios.md's Fields tables against each field's Range."""
+    from dualarm_mpc.scenario import COORDINATE, _fields, _owner
+
+    docs = (Path(__file__).parents[1] / "docs" / "scenarios.md").read_text()
+    rows = dict(re.findall(r"^\| `([\w.\[\]]+)`[^|]*\|[^\n]*\| ([^|]*) \| [^|]* \|$", docs, re.M))
+    s = Scenario()
+    checked = 0
+    for key, path in YAML_FIELDS.items():
+        owner, name = _owner(s, path)
+        value = getattr(owner, name)
+        if dataclasses.is_dataclass(value) or name in ("random_objects", "events"):
+            cls = {"solver": type(s.solver)}.get(key) or typing.get_args(
+                typing.get_type_hints(type(owner))[name])[0]
+            items = [(f"{key}{'[]' if name in ('objects', 'events') else ''}.{f}", fld)
+                     for f, fld in _fields(cls).items()]
+        else:
+            items = [(key, _fields(type(owner))[name])]
+        for doc_key, fld in items:
+            rng = fld.metadata.get("range")
+            if rng is None or doc_key not in rows:
+                continue
+            stated = rows[doc_key].strip()
+            assert stated == ("coordinates" if rng == COORDINATE["range"] else str(rng)), doc_key
+            checked += 1
+    assert checked >= 25, checked
+
+
+def test_the_largest_horizon_builds_a_program() -> None:
+    """solver.max_horizon's maximum: the encoder once recursed T deep (RecursionError at 1000)."""
+    from dualarm_mpc.horizon import build_program
+    from dualarm_mpc.mld import State
+    from dualarm_mpc.scenario import MAX_HORIZON
+    from dualarm_mpc.spec import specification
+
+    s = load_scenario("table1_vd", {"random_objects": {"count": 1}, "m_o": 1, "n_o": 1,
+                                    "rules": ["F theta[1]", "eta[1,1] U theta[1]",
+                                              "G(eta[1,1] R theta[1])"],
+                                    "solver": {"max_horizon": MAX_HORIZON}})
+    prog, *_ = build_program(s, State.initial(s), specification(s, [0]), MAX_HORIZON)
+    assert prog.num_vars() > MAX_HORIZON
+
+
+def test_caps_are_checked_on_loading() -> None:
+    many = [{"name": f"o{j}", "position": [0.0, 0.1], "goal": "red"} for j in range(201)]
+    assert _error({"objects": many}).startswith("objects: 201 objects, at most 200")
+    assert _error({"rules": ["G true & " * 2000 + "true"]}).startswith(
+        "rules[0]: 18,004 characters, at most 10,000")
+    assert _error({"random_objects": {"count": 14}, "task_form": "subsets", "m_o": 7,
+                   "n_o": 14}, "table1_vd").startswith(
+        "task_form: subsets makes φ_task a disjunction of 3,432 subsets")  # C(14, 7)
+    load_scenario("table1_vc", {"task_form": "subsets", "m_o": 5, "n_o": 10})  # 252
+
+
+def test_a_rule_given_twice_is_in_force_once() -> None:
+    from dualarm_mpc.spec import rule_formulas
+
+    s = load_scenario("table1_vc", {"rules": ["G !eta[1,2]", "G !eta[1,2]", "F theta[1]"]})
+    assert [name for name, _ in rule_formulas(s)][-2:] == ["rules[0] G !eta[1,2]",
+                                                           "rules[2] F theta[1]"]
