@@ -72,6 +72,10 @@ def _in(lo: float, hi: float, lo_open: bool = False) -> dict:
 
 # Coordinates on the table, metres: the arms reach 2.2 m from their bases (models/dual_scara.sdf)
 COORDINATE = _in(-10.0, 10.0)
+# The robot of models/dual_scara.sdf (station.py reads it from the model and checks these): each
+# arm's base and its two links, metres. A hand reaches |l1 − l2| to l1 + l2 from its base.
+ROBOT_ARM_BASES = [[0.3, -0.8], [-0.3, -0.8]]
+ROBOT_LINKS = (0.9, 1.3)
 # A grasp box's half size, metres: a few millimetres up to a hand range's half width
 GRASP_HALF_SIZE = _in(0.0, 1.0, lo_open=True)
 
@@ -206,6 +210,23 @@ class Robot:
             raise ScenarioError(
                 f"hand_start: eq. (16) needs x_arm2 + hand_gap <= x_arm1 (arm 1 = right), got "
                 f"x_arm1 = {x1}, x_arm2 = {x2}, hand_gap = {self.hand_gap}")
+        self._check_arms()
+
+    def _check_arms(self) -> None:
+        """The robot model's arms, and a hand range they reach everywhere (the simulation's
+        inverse kinematics has no answer beyond)."""
+        if not np.allclose(self.arm_bases, ROBOT_ARM_BASES, rtol=0, atol=1e-9):
+            raise ScenarioError(f"arm_bases: {self.arm_bases} are not the robot model's "
+                                f"{ROBOT_ARM_BASES} (models/dual_scara.sdf)")
+        (l1, l2), (xmin, xmax, ymin, ymax) = ROBOT_LINKS, self.workspace
+        inner, outer = abs(l1 - l2), l1 + l2
+        for i, (bx, by) in enumerate(self.arm_bases):
+            far = max(math.hypot(x - bx, y - by) for x in (xmin, xmax) for y in (ymin, ymax))
+            near = math.hypot(min(max(bx, xmin), xmax) - bx, min(max(by, ymin), ymax) - by)
+            if far > outer or near < inner:
+                raise ScenarioError(
+                    f"workspace: {self.workspace} is not all within reach of arm {i + 1}, "
+                    f"{inner:g} to {outer:g} m from its base {[bx, by]} (models/dual_scara.sdf)")
 
 
 @dataclass

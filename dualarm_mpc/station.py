@@ -49,7 +49,7 @@ from pydrake.multibody.tree import Joint, ModelInstanceIndex, RigidBody, Spatial
 from pydrake.systems.framework import DiagramBuilder
 
 from dualarm_mpc.resources import ROBOT_URL, package_map
-from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
 from dualarm_mpc.systems.gripper import Gripper
 from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator, Limits
@@ -267,6 +267,10 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
             f"arm_bases: the scenario has {scenario.robot.arm_bases}, the robot model "
             f"{bases.tolist()} (models/dual_scara.sdf is the source of the robot)"
         )
+    if not (np.allclose(bases, ROBOT_ARM_BASES, atol=1e-9) and
+            np.allclose(lengths, ROBOT_LINKS, atol=1e-9)):
+        raise ValueError(f"model: bases {bases.tolist()} and links {lengths} differ from "
+                         "scenario.ROBOT_ARM_BASES and ROBOT_LINKS, which validate scenarios")
     travel = TRAVEL_HEIGHT
     for i, (shoulder, elbow, z) in enumerate(joints):
         q1, q2 = scara_ik(scenario.robot.hand_start[i], bases[i], lengths, ELBOW_SIGNS[i])

@@ -74,6 +74,10 @@ CASES = [
      "objects[1].position[0]: must be >= -10 and <= 10, got 1e+300"),
     (["plan", "base.yaml", "--set", "solver.threads: 100000"], "solver.threads: must be >= 1 and "
                                                                "<= 64"),
+    (["simulate", "base.yaml", "--set", "arm_bases: [[3, -0.8], [-3, -0.8]]"],
+     "arm_bases: [[3.0, -0.8], [-3.0, -0.8]] are not the robot model's"),
+    (["simulate", "base.yaml", "--set", "workspace: [-3, 3, 0, 3]"],
+     "workspace: [-3.0, 3.0, 0.0, 3.0] is not all within reach of arm 1"),
     (["plan", "base.yaml", "--set", "random_objects: {count: 3}"],
      "random_objects: given while the scenario lists 2 objects, which the draw would replace"),
     # rules

@@ -697,3 +697,18 @@ def test_a_rule_given_twice_is_in_force_once() -> None:
     s = load_scenario("table1_vc", {"rules": ["G !eta[1,2]", "G !eta[1,2]", "F theta[1]"]})
     assert [name for name, _ in rule_formulas(s)][-2:] == ["rules[0] G !eta[1,2]",
                                                            "rules[2] F theta[1]"]
+
+
+@pytest.mark.parametrize(
+    ("override", "prefix"),
+    [
+        ("arm_bases: [[3, -0.8], [-3, -0.8]]", "arm_bases: [[3.0, -0.8], [-3.0, -0.8]] are not the "
+                                               "robot model's"),
+        ("workspace: [-3, 3, 0, 3]", "workspace: [-3.0, 3.0, 0.0, 3.0] is not all within reach of "
+                                     "arm 1, 0.4 to 2.2 m from its base"),
+        ("workspace[2]: -0.5", "workspace: [-0.9, 0.9, -0.5, 0.9] is not all within reach"),
+    ],
+)
+def test_the_arms_reach_the_whole_hand_range(override: str, prefix: str) -> None:
+    """The simulation's inverse kinematics had no answer (a traceback) beyond the arms' reach."""
+    assert _error(override).startswith(prefix), _error(override)
