@@ -261,7 +261,7 @@ def check_rule(f: Formula, scenario: Scenario, where: str) -> int:
         problem = _atom_problem(atom, n)
         if problem:
             raise ScenarioError(f"{where}: {problem}")
-    for atom in sorted(_negated_atoms(nnf(f)), key=str):
+    for atom in sorted(negated_atoms(nnf(f)), key=str):
         if atom.name == "theta":
             raise ScenarioError(
                 f"{where}: {atom} appears negated: a goal atom is linked to the state "
@@ -304,7 +304,7 @@ def _atom_problem(atom: Atom, n: int) -> str:
     return ""
 
 
-def _negated_atoms(f: Formula) -> set[Atom]:
+def negated_atoms(f: Formula) -> set[Atom]:
     """The atoms under a negation in ``f``, a formula in negation normal form."""
     out: set[Atom] = set()
     stack = [f]

@@ -12,28 +12,16 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 from scenes import two_objects
+from strategies import formulas
 
 from dualarm_mpc.consistency import check
 from dualarm_mpc.horizon import solve_step, solver_options
-from dualarm_mpc.ltl import (
-    Always,
-    And,
-    Atom,
-    Eventually,
-    Formula,
-    Implies,
-    Next,
-    Not,
-    Or,
-    Release,
-    Until,
-    WeakNext,
-)
+from dualarm_mpc.ltl import Atom, Formula, nnf, rename_atoms
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, apply_overrides
 from dualarm_mpc.sequential import plan
 from dualarm_mpc.solver import Status
-from dualarm_mpc.spec import specification
+from dualarm_mpc.spec import negated_atoms, specification
 from dualarm_mpc.verify import verify
 
 # Two objects near their goals and the hands: a horizon of 4 delivers both (from T = 3), so every
@@ -65,31 +53,18 @@ def small(objects: list[dict], **fields) -> Scenario:
 
 @functools.cache  # built once per size: hypothesis validates a strategy on first use
 def rules(n: int) -> st.SearchStrategy[Formula]:
-    """User rules over ``n`` objects with every operator: atoms η and θ of numbered objects and
-    of placeholders (i the arm; j, and l when there are two objects), θ in positive position
-    only (negated, it is refused: spec.check_rule)."""
+    """User rules over ``n`` objects with every operator (``strategies.formulas``): atoms η and θ
+    of numbered objects and of placeholders (i the arm; j, and l when there are two objects).
+    A θ in negative position is refused (spec.check_rule), so it becomes an η of its object."""
     objects = [*range(1, n + 1), "j", *(["l"] if n > 1 else [])]
-    eta = st.builds(lambda i, j: Atom("eta", (i, j)), st.sampled_from([1, 2, "i"]),
-                    st.sampled_from(objects))
-    theta = st.builds(lambda j: Atom("theta", (j,)), st.sampled_from(objects))
+    atoms = [Atom("eta", (i, j)) for i in (1, 2, "i") for j in objects]
+    atoms += [Atom("theta", (j,)) for j in objects] * 3  # as likely as an η
 
-    def rule(positive: bool, depth: int) -> st.SearchStrategy[Formula]:
-        leaf = st.one_of(eta, theta) if positive else eta
-        if depth == 0:
-            return leaf
-        same = rule(positive, depth - 1)
-        flipped = rule(not positive, depth - 1)
-        return st.one_of(
-            leaf,
-            flipped.map(Not),
-            st.sampled_from((Next, WeakNext, Always, Eventually)).flatmap(same.map),
-            st.builds(Implies, flipped, same),
-            st.sampled_from((Until, Release)).flatmap(lambda op: st.builds(op, same, same)),
-            st.sampled_from((And, Or)).flatmap(
-                lambda op: st.lists(same, min_size=2, max_size=2).map(lambda a: op(tuple(a)))),
-        )
+    def positive_theta(f: Formula) -> Formula:
+        return rename_atoms(f, {a: Atom("eta", ("i", *a.index))
+                                for a in negated_atoms(nnf(f)) if a.name == "theta"})
 
-    return rule(True, 3)
+    return formulas(atoms, max_leaves=6).map(positive_theta)
 
 
 def monolithic_statuses(scenario: Scenario) -> list[Status]:
