@@ -52,10 +52,11 @@ ARM_PLACEHOLDER = "i"
 # 4 object placeholders over 10 objects, with i, encode in about 2 s per program; 7 would not fit
 # in memory.
 MAX_RULE_INSTANCES = 20_000
-# Nodes of the user rules once expanded over a step's objects, together: the encoder makes a truth
-# value per node and step. The four placeholders above make 90,720 nodes; 109,440 took 18 s per
-# program at T = 40 (measured, `check`), more than the solve.
-MAX_RULE_NODES = 100_000
+# Nodes of the user rules once expanded over a step's objects, together, times the steps of the
+# largest horizon: the encoder makes a truth value per node and step. The four placeholders above
+# make 90,720 nodes; 109,440 took 18 s per program at T = 40 (measured, `check`), more than the
+# solve. The cap is 100,000 nodes at the default horizon of 40 (41 steps).
+MAX_RULE_NODE_STEPS = 4_100_000
 
 # The paper's rules, §V-B, with weak next (docs/ltl.md: □(θ → ○θ) reads θ(k) → θ(k+1) for k < T).
 RULE_TEXT = {
@@ -236,15 +237,16 @@ def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str
     each checked (:func:`check_rule`) before any solve."""
     rule = scenario.task.rule if rule is None else rule
     named = [(name, parse(RULE_TEXT[name])) for name in RULES[rule]]
-    seen, nodes = set(), 0
+    seen, nodes, steps = set(), 0, scenario.solver.max_horizon + 1
     for n, text in enumerate(scenario.task.rules):
         f = parse(text)
         nodes += check_rule(f, scenario, f"rules[{n}]")
-        if nodes > MAX_RULE_NODES:
+        if nodes * steps > MAX_RULE_NODE_STEPS:
             raise ScenarioError(
                 f"rules[{n}]: the rules up to this one expand to {nodes:,} formula nodes over the "
-                f"objects of a step, more than {MAX_RULE_NODES:,}; use fewer or shorter rules, "
-                "fewer placeholders or a smaller n_o")
+                f"objects of a step, {nodes * steps:,} over the {steps} steps of "
+                f"solver.max_horizon, more than {MAX_RULE_NODE_STEPS:,}; use fewer or shorter "
+                "rules, fewer placeholders, a smaller n_o or solver.max_horizon")
         if f not in seen:  # a rule given twice is in force once
             seen.add(f)
             named.append((f"rules[{n}] {text}", f))

@@ -712,3 +712,15 @@ def test_a_rule_given_twice_is_in_force_once() -> None:
 def test_the_arms_reach_the_whole_hand_range(override: str, prefix: str) -> None:
     """The simulation's inverse kinematics had no answer (a traceback) beyond the arms' reach."""
     assert _error(override).startswith(prefix), _error(override)
+
+
+def test_the_rules_expansion_is_capped_with_the_horizon() -> None:
+    from dualarm_mpc.spec import rule_formulas
+
+    rule = "G(" + " | ".join(f"eta[{1 + k % 2},j]" for k in range(800)) + ")"  # 802 nodes
+    s = load_scenario("table1_vc", {"rules": [rule], "n_o": 6})  # 6 instances: 4,812 nodes
+    assert rule_formulas(s)
+    s = load_scenario("table1_vc", {"rules": [rule], "n_o": 6, "solver.max_horizon": 1000})
+    with pytest.raises(ScenarioError, match=r"^rules\[0\]: the rules up to this one expand "
+                                            r"to 4,812 formula nodes .* 4,816,812 over the 1001"):
+        rule_formulas(s)
