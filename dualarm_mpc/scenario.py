@@ -50,24 +50,28 @@ class ScenarioError(ValueError):
 
 @dataclass(frozen=True)
 class Range:
-    """The values a number field takes: ``lo`` to ``hi``, ``lo`` itself excluded if ``lo_open``
-    (a number in a list or mapping field: each of them)."""
+    """The values a number field takes: ``lo`` to ``hi``, each excluded if open (a number in a
+    list or mapping field: each of them)."""
 
     lo: float
     hi: float
     lo_open: bool = False
+    hi_open: bool = False
 
     def check(self, value: float, path: str) -> None:
-        if not ((value > self.lo if self.lo_open else value >= self.lo) and value <= self.hi):
-            raise ScenarioError(f"{path}: must be {self}, got {_show(value)}")  # NaN too
+        above = value > self.lo if self.lo_open else value >= self.lo
+        below = value < self.hi if self.hi_open else value <= self.hi
+        if not (above and below):  # NaN too
+            raise ScenarioError(f"{path}: must be {self}, got {_show(value)}")
 
     def __str__(self) -> str:
-        return f"{'>' if self.lo_open else '>='} {_number(self.lo)} and <= {_number(self.hi)}"
+        return (f"{'>' if self.lo_open else '>='} {_number(self.lo)} and "
+                f"{'<' if self.hi_open else '<='} {_number(self.hi)}")
 
 
-def _in(lo: float, hi: float, lo_open: bool = False) -> dict:
+def _in(lo: float, hi: float, lo_open: bool = False, hi_open: bool = False) -> dict:
     """A field's metadata: its :class:`Range`."""
-    return {"range": Range(lo, hi, lo_open)}
+    return {"range": Range(lo, hi, lo_open, hi_open)}
 
 
 # Coordinates on the table, metres: the arms reach 2.2 m from their bases (models/dual_scara.sdf)
@@ -236,10 +240,13 @@ class Table:
     friction: float = field(default=0.0, metadata=_in(0.0, 2.0))  # Coulomb μ, table and objects
     # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
     # one-step slide when τ = Δt (docs/model.md, "The one-step slide"). None: Coulomb only.
-    # Below five 2 ms steps of the simulation the drag is too stiff for its solver.
+    # The drag is applied once per 2 ms step of the simulation: below 1 ms it diverges (measured,
+    # Drake's line search fails); the bound keeps a factor of 10.
     slide_time_constant: float | None = field(default=1.0, metadata=_in(0.01, 1000.0))
-    # A box side: the fingers close on 1 cm to 20 cm (the hand hangs 0.3 m over the table)
-    object_size: float = field(default=0.05, metadata=_in(0.01, 0.2))
+    # A box side: the hand holds a box at half its height and travels at TRAVEL_HEIGHT = 0.1 m
+    # (systems/interpolator.py), so boxes of 0.2 m are refused by the station; below 1 mm the
+    # contact no longer holds them (measured: 0.1 mm boxes are never delivered).
+    object_size: float = field(default=0.05, metadata=_in(0.01, 0.2, hi_open=True))
 
 
 @dataclass

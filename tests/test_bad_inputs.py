@@ -65,8 +65,8 @@ CASES = [
     (["plan", "base.yaml", "--set", "state_weight: -1"], "state_weight: must be >= 0 and <= 100"),
     (["simulate", "base.yaml", "--set", "solver.replan_budget_s: -0.5"],
      "solver.replan_budget_s: must be >= 0 and <= 3600, got -0.5"),
-    (["simulate", "base.yaml", "--set", "object_size: 0.5"], "object_size: must be >= 0.01 and "
-                                                             "<= 0.2, got 0.5"),
+    (["simulate", "base.yaml", "--set", "object_size: 0.2"], "object_size: must be >= 0.01 and "
+                                                             "< 0.2, got 0.2"),
     (["simulate", "base.yaml", "--set", "object_size: 1e-6"], "object_size: must be >= 0.01"),
     (["simulate", "base.yaml", "--set", "slide_time_constant: 1e-6"],
      "slide_time_constant: must be >= 0.01 and <= 1000, got 1e-06"),
