@@ -82,3 +82,12 @@ def test_a_rule_not_monotone_in_the_horizon_is_decided_at_every_horizon(two) -> 
     throw), found at some horizon."""
     report = check(two(rules=["G(eta[1,2] -> WX !eta[1,2])"]), joint=False)
     assert report.consistent and not report.undecided
+
+
+def test_a_rule_about_an_object_outside_the_first_step_is_no_conflict(two) -> None:
+    """With n_o = 1 the first step holds object1 alone, and ``F eta[1,2]`` is about object2.
+    The encoder reads the atoms of an object outside its program as constants (η false): the
+    check drops such an instance, in each object's program and in the first step's, since a
+    program holding object2 can satisfy it."""
+    report = check(two(m_o=1, n_o=1, rules=["F eta[1,2]"]))
+    assert report.consistent and not report.undecided
