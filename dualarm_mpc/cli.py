@@ -1,21 +1,32 @@
 """Command line: ``dualarm-mpc check``, ``plan`` and ``simulate`` (the closed loop in Drake).
 
-Exit codes: 0 done (or consistent), 2 bad input, 3 the task conflicts with the rules or bounds
-(no plan exists), 4 undecided within the time limits or a failed run (a plan that fails
-verification, an object not delivered), 130 interrupted (what was done is written)."""
+Exit codes, the same for every command (docs/cli.md):
+
+  0    done, consistent, or nothing to do
+  2    bad input: a scenario field, flag, formula or path (two outputs on one path, an output
+       on an input, a path that is neither a regular file nor a new one), always before any work
+  3    conflict: the task provably has no plan (the check's conflict, or every horizon up to
+       the cap proven infeasible)
+  4    undecided within the time limits, or a failed run (a plan that fails verification, an
+       object not delivered), or an output that could not be written (one line: path, reason)
+  129 / 130 / 143   stopped by SIGHUP / SIGINT (Ctrl-C) / SIGTERM: what ran is written, partial
+"""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import logging
 import math
 import os
+import signal
 import sys
 import threading
 import time
 from pathlib import Path
 
+from dualarm_mpc import outputs
 from dualarm_mpc.ltl import LTLSyntaxError
 from dualarm_mpc.scenario import (
     SOLVER_BACKENDS,
@@ -23,9 +34,15 @@ from dualarm_mpc.scenario import (
     load_scenario,
     merge_overrides,
     parse_override,
+    scenario_path,
 )
 
-HEARTBEAT_S = 15.0  # seconds of a search without a line before it says it is still searching
+HEARTBEAT_S = 15.0  # seconds of a phase without a line before it says it is still going on
+
+OK, BAD_INPUT, CONFLICT, FAILED = 0, 2, 3, 4  # exit codes; a stop signal: 128 + its number
+# Each stops a run as Ctrl-C does: the work so far is written, marked partial.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+_received: list[int] = []  # the stop signals received by this run, first first
 
 
 def _overrides(args: argparse.Namespace) -> dict:
@@ -74,36 +91,30 @@ def _seconds(text: str) -> float:
 
 
 def _output(path: str) -> str:
-    """A file the run writes at its end, checked before the run starts: a directory that does
-    not exist or a place that cannot be written would lose the work."""
-    p = Path(path)
-    if p.is_dir():
-        raise argparse.ArgumentTypeError(f"{path} is a directory")
-    if not p.parent.is_dir():
-        raise argparse.ArgumentTypeError(f"directory {p.parent} does not exist")
-    existed = p.exists()
-    try:
-        with open(p, "a"):
-            pass
-    except OSError as err:
-        raise argparse.ArgumentTypeError(f"cannot write {path}: {err.strerror}") from None
-    if not existed:
-        p.unlink()
+    """A file the run writes at its end, checked before the run starts (``outputs.py``): a
+    directory that does not exist or a place that cannot be written would lose the work."""
+    problem = outputs.output_problem(path)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     return path
 
 
 def _directory(path: str) -> str:
     """A directory the run writes files into, checked before the run starts: made if missing
     (in a directory that exists)."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise argparse.ArgumentTypeError(f"{path} is not a directory")
-    where = p if p.exists() else p.parent
-    if not where.is_dir():
-        raise argparse.ArgumentTypeError(f"directory {where} does not exist")
-    if not os.access(where, os.W_OK | os.X_OK):
-        raise argparse.ArgumentTypeError(f"cannot write in {where}")
+    problem = outputs.directory_problem(path)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     return path
+
+
+class _Once(argparse.Action):
+    """A flag that names an output: given twice, one of the two would be silently dropped."""
+
+    def __call__(self, parser, namespace, value, option_string=None) -> None:
+        if getattr(namespace, self.dest) is not None:
+            raise argparse.ArgumentError(self, "given twice: each output is named once")
+        setattr(namespace, self.dest, value)
 
 
 def _plot(path: str) -> str:
@@ -116,6 +127,37 @@ def _plot(path: str) -> str:
         raise argparse.ArgumentTypeError(f"unknown plot format {suffix or '(no suffix)'!r} "
                                          f"(one of {', '.join(sorted(formats))})")
     return _output(path)
+
+
+OUTPUT_FLAGS = ("out", "plot", "html", "summary")
+
+
+def _paths_problem(args: argparse.Namespace) -> str | None:
+    """Two outputs on one file, or an output on an input (the scenario file, ``--export``'s
+    files): one of them would be lost. Symbolic links, ``..`` and hard links are seen
+    through."""
+    named = [(f"--{flag}", path) for flag in OUTPUT_FLAGS
+             if (path := getattr(args, flag, None)) is not None]
+    for i, (flag, path) in enumerate(named):
+        for other, other_path in named[:i]:
+            if outputs.same_file(path, other_path):
+                where = path if path == other_path else f"{other_path} and {path}"
+                return f"{other} and {flag} name one file ({where}): give each its own path"
+    scenario = scenario_path(args.scenario)
+    for flag, path in named:
+        if outputs.same_file(path, scenario):
+            return f"{flag} is the scenario file ({path}): writing it would destroy the input"
+    export = getattr(args, "export", None)
+    if export is not None:
+        from dualarm_mpc.export import exported_file
+
+        for flag, path in [*named, ("the scenario", str(scenario))]:
+            if outputs.same_file(path, export):
+                return f"{flag} and --export name one path ({path})"
+            if outputs.same_file(os.path.dirname(os.path.realpath(path)), export) and \
+                    exported_file(os.path.basename(os.path.realpath(path))):
+                return f"{flag} ({path}) is a file --export writes in {export}"
+    return None
 
 
 def _objects_left(scenario) -> int:
@@ -149,35 +191,52 @@ def _scenario_arguments(p: argparse.ArgumentParser) -> None:
                    "--set 'solver.time_limit_s: 5' (repeatable)")
 
 
-def _check(scenario, joint: bool, file=sys.stdout):
-    """Run the consistency check (``consistency.py``) and print what it found."""
+def _check(scenario, joint: bool, file=None):
+    """Run the consistency check (``consistency.py``) and print what it found. Nothing of it
+    is kept if a signal stops it."""
     from dualarm_mpc.consistency import check
 
-    report = check(scenario, joint=joint)
+    report = _interruptible(lambda: check(scenario, joint=joint),
+                            tick=_heartbeat("checking the task against the rules"))
     for conflict in report.conflicts:
-        print(f"conflict: {conflict}", file=file)
+        print(f"conflict: {conflict}", file=file or sys.stdout)
     for what in report.undecided:
-        print(f"undecided within the time limit: {what}", file=file)
+        print(f"undecided within the time limit: {what}", file=file or sys.stdout)
     return report
 
 
+def _load(args: argparse.Namespace, overrides: bool = True):
+    """The scenario of the command line (with the flags' overrides); nothing to keep if a
+    signal stops it."""
+    return _interruptible(lambda: load_scenario(args.scenario,
+                                                _overrides(args) if overrides else None),
+                          tick=_heartbeat("reading the scenario"))
+
+
 def cmd_check(args: argparse.Namespace) -> int:
-    report = _check(load_scenario(args.scenario, _overrides(args)), joint=True)
+    report = _check(_load(args), joint=True)
     if report.conflicts:
-        return 3
+        return CONFLICT
     if report.undecided:
-        return 4
+        return FAILED
     print(f"consistent: every object has a plan on its own, and the first step as a whole, "
           f"within {report.horizon} steps")
-    return 0
+    return OK
 
 
-def _interruptible(work, stop, tick=lambda: None):
-    """``work()`` on a thread, so that Ctrl-C reaches the main thread at once (a HiGHS run
-    holds it until it returns); Ctrl-C stops the solves through ``stop`` (a
-    ``solver.Interrupt``) and ``work`` returns what it has. ``tick()`` runs every 0.1 s."""
+class _Abandoned(KeyboardInterrupt):
+    """A signal stopped a phase that has nothing to keep; its thread still runs."""
+
+
+def _interruptible(work, stop=None, tick=lambda: None):
+    """``work()`` on a thread, so that a stop signal (SIGINT, SIGTERM, SIGHUP: a
+    ``KeyboardInterrupt`` here) reaches the main thread at once (a HiGHS run holds it until it
+    returns). With ``stop`` (a ``solver.Interrupt``) the signal stops the solves and ``work``
+    returns what it has; without, ``work`` has nothing to keep and is left to run
+    (:class:`_Abandoned`: the process ends without waiting for it). ``tick()`` runs every
+    0.1 s."""
     out: dict = {}
-    done = threading.Event()  # not Thread.join: a join cut short by Ctrl-C can lose the thread
+    done = threading.Event()  # not Thread.join: a join cut short by a signal can lose the thread
 
     def run() -> None:
         try:
@@ -192,12 +251,50 @@ def _interruptible(work, stop, tick=lambda: None):
         while not done.wait(0.1):
             tick()
     except KeyboardInterrupt:
+        if stop is None:
+            raise _Abandoned from None
         stop.set()
-        print("interrupted: stopping the solver", file=sys.stderr, flush=True)
+        print(f"interrupted by {_signal_name()}: stopping the solver", file=sys.stderr,
+              flush=True)
         done.wait()
     if "error" in out:
         raise out["error"]
     return out["value"]
+
+
+def _heartbeat(what: str):
+    """A ``tick`` that says ``what`` is still going on every ``HEARTBEAT_S``: no phase is
+    silent for long."""
+    start = said = time.perf_counter()
+
+    def tick() -> None:
+        nonlocal said
+        now = time.perf_counter()
+        if now - said >= HEARTBEAT_S:
+            print(f"{what}: {now - start:.0f} s so far", flush=True)
+            said = now
+
+    return tick
+
+
+def _write(output: outputs.Output | None, save, what: str = "") -> bool:
+    """``save(output)`` and say so; a failed write is one line (the path and the OS's reason).
+    Whether it was written (or not asked for)."""
+    if output is None:
+        return True
+    if save is not None:  # None: written inside the run (the replay)
+        save(output)
+    if output.error is not None:
+        print(f"error: cannot write {output}: {output.error.strerror}", file=sys.stderr)
+        return False
+    print(f"wrote {output}{what}")
+    return True
+
+
+def _failed_writes(code: int, written: bool) -> int:
+    """An output that could not be written fails a run that would have exited 0; a run that
+    ends otherwise keeps its code (the error lines say what is missing)."""
+    return FAILED if code == OK and not written else code
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -206,12 +303,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from dualarm_mpc.solver import Interrupt
     from dualarm_mpc.verify import verify
 
-    scenario = load_scenario(args.scenario, _overrides(args))
+    scenario = _load(args)
     task = scenario.task
     print(f"{scenario.name}: {scenario.n_objects} objects, rule {task.rule}, "
           f"(m_o, n_o) = ({task.m_o}, {task.n_o}), delivery {task.delivery}")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
-        return 3
+        return CONFLICT
     left = _objects_left(scenario)
     if left:
         print(f"{'step':>4}  {'delivered':<22} {'T':>3} {'binaries':>8}  {'status':<10} "
@@ -257,60 +354,79 @@ def cmd_plan(args: argparse.Namespace) -> int:
                                 heartbeat)
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)
-        if err.partial is not None and err.partial.segments:
+        written = err.partial is None or not err.partial.segments or \
             _save_plan(err.partial, args, scenario)
-        return 3
-    finally:
-        if export and export.entries:
-            print(f"wrote {len(export.entries)} MILP(s) as MPS, listed in "
-                  f"{Path(args.export) / 'index.json'}")
-    check = verify(scenario, result)
-    result = dataclasses.replace(result, verified=check.ok)
+        return _failed_writes(CONFLICT if err.proven else FAILED,
+                              _exported(export, args) and written)
+    exported = _exported(export, args)
+    try:
+        check = verify(scenario, result)
+    except KeyboardInterrupt:  # a signal while verifying: the plan is written, not verified
+        check = None
+    result = dataclasses.replace(result, verified=check is not None and check.ok)
     resting = sum(d is not None for d in result.delivered_step)
     already = f" ({scenario.n_objects - left} already there)" if left < scenario.n_objects else ""
     print(f"total: {resting}/{scenario.n_objects} resting in their goals{already}, cost "
           f"{result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
           f"(CPU {result.total_cpu_time_s:.2f} s)")
-    _save_plan(result, args, scenario)
-    if result.partial:
-        print(f"interrupted after {len(result.segments)} step(s): what was written is partial",
-              file=sys.stderr)
-        return 130
+    written = _save_plan(result, args, scenario) and exported
+    if result.partial or check is None:
+        print(f"interrupted by {_signal_name()} after {len(result.segments)} step(s): what was "
+              "written is partial"
+              + ("" if check is not None else " and not verified"), file=sys.stderr)
+        return _stopped()
     if not check.ok:
         print("error: the plan fails verification:\n  " + "\n  ".join(check.problems),
               file=sys.stderr)
-        return 4
+        return FAILED
     print("verified: the replayed trace satisfies every step's specification; "
           "every object rests in its goal")
-    return 0
+    return _failed_writes(OK, written)
 
 
-def _save_plan(result, args: argparse.Namespace, scenario) -> None:
-    """Write the plan JSON and PNG asked for (a partial plan is marked so in both)."""
+def _exported(export, args: argparse.Namespace) -> bool:
+    """Say what ``--export`` wrote, and whether it wrote every file it tried."""
+    if export is None:
+        return True
+    if export.entries:
+        print(f"wrote {len(export.entries)} MILP(s) as MPS, listed in "
+              f"{Path(args.export) / 'index.json'}")
+    if export.error is not None:
+        print(f"error: cannot write {export.error.filename}: {export.error.strerror} "
+              "(the export stopped there)", file=sys.stderr)
+    return export.error is None
+
+
+def _save_plan(result, args: argparse.Namespace, scenario) -> bool:
+    """Write the plan JSON and the plot asked for (a partial plan is marked so in both);
+    whether both were written."""
     from dualarm_mpc.plot import plot_plan
 
     partial = " (partial)" if result.partial else ""
-    if args.out:
-        result.save(args.out)
-        print(f"wrote {args.out}{partial}")
-    if args.plot:
-        plot_plan(result, args.plot, title=f"{scenario.name}, rule {scenario.task.rule}: cost "
-                  f"{result.total_cost:.3f}, solve {result.total_solve_time_s:.1f} s{partial}")
-        print(f"wrote {args.plot}{partial}")
+    title = (f"{scenario.name}, rule {scenario.task.rule}: cost {result.total_cost:.3f}, "
+             f"solve {result.total_solve_time_s:.1f} s{partial}")
+    written = _write(_output_of(args, "out"), result.save, partial)
+    return _write(_output_of(args, "plot"), lambda out: plot_plan(result, out, title),
+                  partial) and written
+
+
+def _output_of(args: argparse.Namespace, flag: str) -> outputs.Output | None:
+    path = getattr(args, flag)
+    return None if path is None else outputs.Output(path, f"--{flag}")
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from dualarm_mpc.closed_loop import on_robot, simulate
     from dualarm_mpc.scenario import apply_overrides
 
-    base = load_scenario(args.scenario)
+    base = _load(args, overrides=False)
     overrides = on_robot(base)
     merge_overrides(overrides, _overrides(args))
     scenario = apply_overrides(base, overrides)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.task.rule}, "
           f"(m_o, n_o) = ({scenario.task.m_o}, {scenario.task.n_o})")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
-        return 3
+        return CONFLICT
     _objects_left(scenario)
     print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")
 
@@ -327,65 +443,155 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         meshcat = start_meshcat(live=True)
         print(f"Meshcat: {meshcat.web_url()} (open it in a browser to watch the run live; "
               "it replays the run when the run ends)", flush=True)
-    summary = simulate(scenario, args.duration, args.html, progress, meshcat=meshcat)
+    html = _output_of(args, "html")
+    summary = simulate(scenario, args.duration, html, progress, meshcat=meshcat)
     n_in = sum(d is not None for d in summary.delivered_time_s)
     print(f"end: t = {summary.sim_time_s:.1f} s, {n_in}/{scenario.n_objects} objects resting in "
           f"their goals, real-time factor {summary.realtime_factor:.2f}")
-    if args.summary:
-        summary.save(args.summary)
-        print(f"wrote {args.summary}")
-    if args.html:
-        print(f"wrote {args.html} (open it in a browser: it plays the run from the start)")
+    partial = " (partial)" if summary.interrupted else ""
+    written = _write(_output_of(args, "summary"), summary.save, partial)
+    written = _write(html, None, f"{partial} (open it in a browser: it plays the run from the "
+                     "start)") and written
     if summary.interrupted:
-        print(f"interrupted at t = {summary.sim_time_s:.1f} s: the summary and replay end there",
-              file=sys.stderr)
-        return 130
+        print(f"interrupted by {_signal_name()} at t = {summary.sim_time_s:.1f} s: the summary "
+              "and replay end there", file=sys.stderr)
+        return _stopped()
     if not summary.all_delivered:
         print("error: not every object ends at rest inside its goal", file=sys.stderr)
-        return 4
-    return 0
+        return FAILED
+    return _failed_writes(OK, written)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="dualarm-mpc", description=__doc__)
+def _stopped() -> int:
+    """The exit code of a run a signal stopped: 128 + the signal's number (130 for Ctrl-C)."""
+    return 128 + (_received[0] if _received else signal.SIGINT)
+
+
+def _signal_name() -> str:
+    return signal.Signals(_stopped() - 128).name
+
+
+@contextlib.contextmanager
+def _stop_signals():
+    """SIGTERM and SIGHUP stop the run as SIGINT does: a ``KeyboardInterrupt`` on the main
+    thread, the signal noted for the exit code."""
+    def stop(signum: int, frame) -> None:
+        _received.append(signum)
+        raise KeyboardInterrupt
+
+    _received.clear()
+    before = {s: signal.signal(s, stop) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler)
+
+
+class _Sturdy:
+    """A standard stream whose reader may go (``| head -1``; the terminal, with SIGHUP): once a
+    write fails it points at /dev/null and the run goes on to write its files (the recipe of
+    Python's ``signal`` docs for BrokenPipeError)."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except OSError:
+            self._lost()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError:
+            self._lost()
+
+    def _lost(self) -> None:
+        with contextlib.suppress(OSError, ValueError):  # ValueError: no file descriptor
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, self._stream.fileno())
+            os.close(devnull)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def _sturdy_streams():
+    saved = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = _Sturdy(sys.stdout), _Sturdy(sys.stderr)
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = saved
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dualarm-mpc", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="store_true")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("check", help="decide whether the task, the rules and the bounds admit a "
                        "plan; name each conflict (exit 3)")
     _scenario_arguments(p)
-    p.set_defaults(run=cmd_check)
+    p.set_defaults(run=cmd_check, parser=p)
     p = sub.add_parser("plan", help="plan the whole task (sequential transportation) and verify it")
     _scenario_arguments(p)
-    p.add_argument("--out", type=_output, help="write the plan JSON here")
-    p.add_argument("--plot", type=_plot, help="write a PNG (or PDF, SVG, ...) of the plan here")
-    p.add_argument("--export", type=_directory, metavar="DIR",
+    p.add_argument("--out", type=_output, action=_Once, help="write the plan JSON here")
+    p.add_argument("--plot", type=_plot, action=_Once,
+                   help="write a PNG (or PDF, SVG, ...) of the plan here")
+    p.add_argument("--export", type=_directory, action=_Once, metavar="DIR",
                    help="write the monolithic MILP of each horizon tried as an MPS file here, "
                    "with index.json")
-    p.set_defaults(run=cmd_plan)
+    p.set_defaults(run=cmd_plan, parser=p)
     p = sub.add_parser("simulate", help="run the receding-horizon planner on the robot in Drake")
     _scenario_arguments(p)
     p.add_argument("--duration", type=_seconds,
                    help="simulated seconds (default: by object count)")
-    p.add_argument("--html", type=_output, help="write the self-contained Meshcat replay here")
-    p.add_argument("--summary", type=_output, help="write the summary JSON here")
+    p.add_argument("--html", type=_output, action=_Once,
+                   help="write the self-contained Meshcat replay here")
+    p.add_argument("--summary", type=_output, action=_Once, help="write the summary JSON here")
     p.add_argument("--meshcat", action="store_true",
                    help="start Drake's Meshcat server, print its URL and draw the run there live, "
                    "at real time")
-    p.set_defaults(run=cmd_simulate)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    p.set_defaults(run=cmd_simulate, parser=p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    with _stop_signals(), _sturdy_streams():
+        try:
+            args = _parser().parse_args(argv)
+            logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                                format="%(levelname)s %(name)s: %(message)s")
+            code = _run(args)
+        except _Abandoned:  # its thread still runs (HiGHS, a pool): end without waiting for it
+            print(f"interrupted by {_signal_name()}: nothing was written", file=sys.stderr,
+                  flush=True)
+            sys.stdout.flush()
+            os._exit(_stopped())
+        except KeyboardInterrupt:  # outside a solve (or a second signal): nothing left to keep
+            print(f"interrupted by {_signal_name()}", file=sys.stderr)
+            code = _stopped()
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The command, with bad input (refused before any work) as one line and exit 2."""
     from dualarm_mpc.encoding import EncodingError  # here: it loads pydrake
     from dualarm_mpc.solver import SolverUnavailable
 
     try:
+        problem = _paths_problem(args)
+        if problem:
+            args.parser.error(problem)
         return args.run(args)
     except (ScenarioError, LTLSyntaxError, EncodingError, SolverUnavailable) as err:  # one line
         print(f"error: {err}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:  # outside a solve (or a second Ctrl-C): nothing left to keep
-        print("interrupted", file=sys.stderr)
-        return 130
+        return BAD_INPUT
 
 
 if __name__ == "__main__":

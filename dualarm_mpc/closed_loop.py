@@ -22,7 +22,7 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import Context, EventStatus
 
-from dualarm_mpc import recording
+from dualarm_mpc import outputs, recording
 from dualarm_mpc.diagram import DualArm, MakeDiagram
 from dualarm_mpc.mld import REST_SPEED, at_rest, delivered
 from dualarm_mpc.mpc import Replan, Solve
@@ -70,7 +70,8 @@ class Summary:
         return dict(self.__dict__)
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json(), indent=1))
+        """Write the summary JSON, whole or not at all."""
+        outputs.write(path, json.dumps(self.to_json(), indent=1))
 
 
 @dataclass(frozen=True)

@@ -10,22 +10,31 @@ what another solver can take, and its optimum is the one the search returns at t
 (equal, or below it where only a hand-over the search left out is cheaper: docs/search.md).
 
 The index is rewritten after every file, so an interrupted plan leaves a complete index of the
-horizons tried so far.
+horizons tried so far. Every file is written whole or not at all (``outputs.py``); the first write
+that fails ends the export (kept in ``error``), not the plan.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
 
+from dualarm_mpc import outputs
 from dualarm_mpc.horizon import HorizonProgram
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.sequential import HorizonTried
 from dualarm_mpc.solver import write_mps
 
 INDEX = "index.json"
+FILES = re.compile(r"step\d+_T\d+\.mps|" + re.escape(INDEX))  # every name the export writes
+
+
+def exported_file(name: str) -> bool:
+    """Whether the export may write a file named ``name`` in its directory."""
+    return FILES.fullmatch(name) is not None
 
 
 class MpsExport:
@@ -37,13 +46,21 @@ class MpsExport:
         self.directory = Path(directory)
         self.directory.mkdir(exist_ok=True)
         self.entries: list[dict] = []
+        self.error: OSError | None = None
 
     def __call__(self, tried: HorizonTried) -> None:
+        if self.error is None:
+            try:
+                self._export(tried)
+            except OSError as err:
+                self.error = err
+
+    def _export(self, tried: HorizonTried) -> None:
         res, spec = tried.result, tried.spec
         program = HorizonProgram(self.scenario, tried.state, list(spec.objects), res.horizon)
         form = program.standard_form(spec)
         name = f"step{tried.step:02d}_T{res.horizon:02d}.mps"
-        write_mps(form, self.directory / name)
+        outputs.write_with(self.directory / name, lambda tmp: write_mps(form, tmp), ".mps")
         self.entries.append({
             "step": tried.step, "horizon": res.horizon,
             "objects": [self.scenario.task.objects[j].name for j in spec.objects],
@@ -66,6 +83,4 @@ class MpsExport:
                         "hand-overs the search leaves out' (docs/search.md)",
             "horizons": self.entries,
         }
-        tmp = self.directory / (INDEX + ".tmp")
-        tmp.write_text(json.dumps(index, indent=1))
-        tmp.replace(self.directory / INDEX)
+        outputs.write(self.directory / INDEX, json.dumps(index, indent=1))

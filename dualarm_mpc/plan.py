@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dualarm_mpc import outputs
+
 
 @dataclass(frozen=True)
 class Trajectory:
@@ -148,7 +150,8 @@ class Plan:
         }
 
     def save(self, path: str | Path) -> None:
-        Path(path).write_text(json.dumps(self.to_json(), indent=1))
+        """Write the plan JSON, whole or not at all."""
+        outputs.write(path, json.dumps(self.to_json(), indent=1))
 
     @staticmethod
     def from_json(data: dict) -> Plan:

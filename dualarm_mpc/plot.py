@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from collections import defaultdict
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 
+from dualarm_mpc import outputs  # noqa: E402
 from dualarm_mpc.plan import Plan  # noqa: E402
 
 GOAL_COLOURS = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue"}
@@ -28,10 +30,13 @@ def colour(goal: str) -> str:
 
 
 def plot_plan(plan: Plan, path: str | Path, title: str = "") -> None:
-    """Write the PNG of :func:`plan_figure`."""
+    """Write :func:`plan_figure` in the format the suffix of ``path`` names (PNG, PDF, SVG, ...),
+    whole or not at all."""
     fig = plan_figure(plan, title)
-    fig.savefig(path, dpi=100)
+    image = io.BytesIO()
+    fig.savefig(image, format=Path(path).suffix.lstrip(".").lower(), dpi=100)
     plt.close(fig)
+    outputs.write(path, image.getvalue())
 
 
 def plan_figure(plan: Plan, title: str = "") -> Figure:
@@ -42,15 +47,16 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
     hand holds over time."""
     t = plan.trajectory
     ends = np.cumsum([0] + [seg.horizon for seg in plan.segments])
-    rows = -(-len(plan.segments) // STEPS_PER_ROW)
+    rows = -(-len(plan.segments) // STEPS_PER_ROW)  # none: nothing to do, no step panels
     # The step panels show where anything moves, goals included, on one scale.
     boxes = np.array(list(plan.goals.values()))
     points = np.concatenate([t.hand_pos.reshape(-1, 2), t.object_pos.reshape(-1, 2),
                              boxes[:, [0, 2]], boxes[:, [1, 3]]])
     lo, hi = points.min(axis=0) - 0.05, points.max(axis=0) + 0.05
     row_height = 10 / STEPS_PER_ROW * (hi - lo)[1] / (hi - lo)[0] + 0.4
-    fig = plt.figure(figsize=(12, 6.5 + row_height * rows + 2))
-    grid = fig.add_gridspec(3, 1, height_ratios=[6.5, row_height * rows, 2])
+    heights = [6.5, *([row_height * rows] if rows else []), 2]
+    fig = plt.figure(figsize=(12, sum(heights)))
+    grid = fig.add_gridspec(len(heights), 1, height_ratios=heights)
     ax = fig.add_subplot(grid[0])
     _table(ax, plan)
     for j, o in enumerate(plan.objects):
@@ -77,7 +83,7 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
                  label=f"{name} hand (below), a dot per {plan.dt:g} s")
           for name, c in zip(ARM_NAMES, ARM_COLOURS, strict=True)),
     ], loc="upper left", bbox_to_anchor=(1.02, 1), fontsize=8, frameon=False)
-    panels = grid[1].subgridspec(rows, STEPS_PER_ROW)
+    panels = grid[1].subgridspec(rows, STEPS_PER_ROW) if rows else None
     for s, seg in enumerate(plan.segments):
         p = fig.add_subplot(panels[s // STEPS_PER_ROW, s % STEPS_PER_ROW])
         _table(p, plan, names=False)
@@ -90,7 +96,7 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
         delivered = ",".join(str(j + 1) for j in seg.delivered) or "none"
         p.set_title(f"step {s + 1}, {ends[s] * plan.dt:g}–{ends[s + 1] * plan.dt:g} s: "
                     f"delivers {delivered}", fontsize=8)
-    tl = fig.add_subplot(grid[2])
+    tl = fig.add_subplot(grid[-1])
     k = np.arange(len(t.grasp))
     for i in range(2):
         for j, o in enumerate(plan.objects):

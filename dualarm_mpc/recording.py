@@ -9,6 +9,7 @@ import numpy as np
 from pydrake.geometry import Box, Meshcat, MeshcatParams, Rgba
 from pydrake.math import RigidTransform
 
+from dualarm_mpc import outputs
 from dualarm_mpc.station import Station, goal_colour
 
 # The view is framed for a 1280×800 window (a wider one only adds margin at the sides), through a
@@ -97,7 +98,7 @@ def save_recording(meshcat: Meshcat, path: str | Path | None) -> None:
         return
     html = meshcat.StaticHtml()
     head, _, tail = html.rpartition("</body>")
-    Path(path).write_text(head + OPEN_CONTROLS + tail)
+    outputs.write(path, head + OPEN_CONTROLS + tail)
 
 
 def is_self_contained(html: str) -> bool:

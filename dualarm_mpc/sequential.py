@@ -32,11 +32,14 @@ CAP_CHECK_TIME_S = 3.0  # the whole of that check
 
 class PlanningError(RuntimeError):
     """No plan was found; the message says why (e.g. which rules conflict). ``partial`` holds
-    the steps completed before (a partial :class:`Plan`), if any."""
+    the steps completed before (a partial :class:`Plan`), if any. ``proven``: the step has no
+    plan at all (every horizon up to the cap proven infeasible); otherwise the planner ran out
+    of time or stalled, which decides nothing."""
 
-    def __init__(self, message: str, partial: Plan | None = None) -> None:
+    def __init__(self, message: str, partial: Plan | None = None, proven: bool = False) -> None:
         super().__init__(message)
         self.partial = partial
+        self.proven = proven
 
 
 @dataclass(frozen=True)
@@ -124,12 +127,13 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     last = None
     check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
     below: dict = {}  # the search's relaxations with a plan, from one horizon to the next
+    proven = True  # every horizon tried was proven infeasible
     for T in range(predict_horizon(scenario, state, spec), cap + 1):
         _stop_if_asked(options)
         if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
             check_cap = False  # once
             if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
-                raise PlanningError(diagnose(scenario, state, spec, None, options))
+                raise PlanningError(diagnose(scenario, state, spec, None, options), proven=True)
         res = solve_horizon(scenario, state, spec, T, options, below=below)
         _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
         if on_try:
@@ -137,9 +141,10 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
         last = res
         if res.status.has_solution:
             return res, time.perf_counter() - t0
+        proven = proven and res.status is Status.INFEASIBLE
         if res.status is Status.ERROR:
             break
-    raise PlanningError(diagnose(scenario, state, spec, last, options))
+    raise PlanningError(diagnose(scenario, state, spec, last, options), proven=proven)
 
 
 def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepResult | None,
@@ -231,7 +236,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         except Interrupted:
             return finish(partial=True)
         except PlanningError as err:
-            raise PlanningError(str(err), finish(partial=True)) from None
+            raise PlanningError(str(err), finish(partial=True), err.proven) from None
         cpu = time.process_time() - cpu0
         step = embed_step(scenario, state, objects, res.trajectory)
         offset = trajectory.steps

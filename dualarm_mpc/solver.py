@@ -12,6 +12,7 @@ knows nothing of LTL or robots.
 from __future__ import annotations
 
 import enum
+import errno
 import importlib.util
 import threading
 import time
@@ -311,8 +312,35 @@ def _result(f: StandardForm, options: SolveOptions, out: Outcome, wall: float) -
 
 
 def write_mps(f: StandardForm, path: str | Path) -> None:
-    """Write ``f`` as an MPS file (through HiGHS), for any other solver to read."""
+    """Write ``f`` as an MPS file (through HiGHS), for any other solver to read; ``OSError``
+    if the file is not whole."""
+    import highspy
+
     from dualarm_mpc.backends import highs_model
 
-    h = highs_model(f)
-    h.writeModel(str(path))
+    path = Path(path)
+    if highs_model(f).writeModel(str(path)) == highspy.HighsStatus.kError or \
+            not _ends(path, b"ENDATA\n"):
+        raise _why_short(path)
+
+
+def _ends(path: Path, tail: bytes) -> bool:
+    """Whether file ``path`` ends with ``tail`` (HiGHS does not check its writes: a full disk
+    or a file-size limit leaves a truncated file it reports written)."""
+    try:
+        with open(path, "rb") as file:
+            file.seek(max(path.stat().st_size - len(tail), 0))
+            return file.read() == tail
+    except OSError:
+        return False
+
+
+def _why_short(path: Path) -> OSError:
+    """The OS's reason a write to ``path`` fell short, which HiGHS does not tell: asked by
+    appending a byte to the (failed, to be discarded) file."""
+    try:
+        with open(path, "ab") as file:
+            file.write(b"\n")
+    except OSError as err:
+        return OSError(err.errno, err.strerror, str(path))
+    return OSError(errno.EIO, "HiGHS could not write the whole MPS file", str(path))
