@@ -117,7 +117,7 @@ COLLISIONS = [
     (["plan", "{s}", "--out", "{hard}"], "--out is the scenario file (hard.yaml)"),
     (["plan", "{s}", "--out", "{symlink}"], "--out is the scenario file (link.json)"),
     (["plan", "{s}", "--out", "p.png", "--plot", "./p.png"],
-     "--out and --plot name one file (./p.png)"),
+     "--out and --plot name one file (p.png and ./p.png)"),
     (["simulate", "{s}", "--html", "r.json", "--summary", "r.json"],
      "--html and --summary name one file (r.json)"),
     (["simulate", "{s}", "--summary", "{symlink}"], "--summary is the scenario file (link.json)"),
