@@ -235,7 +235,7 @@ def test_empty_or_malformed_box(overrides, prefix: str) -> None:
         ({"task_form": "both"}, "task_form: must be"),
         ({"solver": {"backend": "glpk"}}, "solver.backend: unknown solver 'glpk' (one of highs"),
         ({"solver": {"time_limit_s": 0}}, "solver.time_limit_s: must be > 0 and <= 86400"),
-        ({"max_force": 0}, "max_force: must be > 0 and <= 10, got 0.0"),
+        ({"max_force": 0}, "max_force: must be >= 0.001 and <= 10, got 0.0"),
         ({"hand_gap": -0.1}, "hand_gap: must be >= 0"),
         ({"hand_start": [[0.1, 0.0]]}, "hand_start: expected two points"),
         (
