@@ -20,8 +20,9 @@ at some horizon up to ``solver.max_horizon`` — it may drop constraints, never 
   eta[1,1]`` or ``F theta[1] | …`` would then be false in object 2's program although a step
   over both can satisfy it. A plan of the real step, cut down to the hands and j, is a plan of
   this program. When one step holds the whole task (m_o = n_o, every object left), that step
-  delivers j, so a conflict here proves the task has no plan; with m_o < n_o it proves that no
-  step from this state delivers j.
+  delivers j, so a conflict here proves the task has no plan; with several steps it proves only
+  that no step from this state delivers j: a later step starts with the hands elsewhere, which
+  these programs do not model.
 * **Who holds it** (:func:`_cases`): the one-object program is solved as three restrictions —
   hand 2 never holds j after now, hand 1 never does, both do at some time — whose plans together
   are exactly its plans; it is infeasible when all three are.
