@@ -39,7 +39,8 @@ SOLVER_BACKENDS = ("highs", "scip", "gurobi", "cplex")  # solver.BACKENDS, witho
 # check 12 s, growing with the count; 2,000 would take the better part of an hour.
 MAX_OBJECTS = 200
 MAX_HORIZON = 1000  # solver.max_horizon: the per-object check builds a program at this horizon
-MAX_RULE_CHARS = 10_000  # one rule's text; the paper's rules have 40 to 60 characters
+# Any text (a rule, a name, a key): the paper's rules have 40 to 60 characters
+MAX_TEXT_CHARS = 10_000
 # task_form: subsets is a disjunction of C(n, m_o) conjunctions in every program of a step:
 # C(12, 6) = 924 build a program of T = 40 in 0.27 s, C(16, 8) = 12,870 in 2.3 s (measured), and
 # a step builds one per horizon tried, the search many more
@@ -323,9 +324,6 @@ class Task:
                 f"{self.m_o} of n_o = {self.n_o}), more than {MAX_TASK_SUBSETS:,}; use "
                 "task_form: counting (the same task) or a smaller n_o")
         for n, text in enumerate(self.rules):
-            if len(text) > MAX_RULE_CHARS:
-                raise ScenarioError(f"rules[{n}]: {len(text):,} characters, at most "
-                                    f"{MAX_RULE_CHARS:,}")
             try:
                 parse(text)
             except LTLSyntaxError as err:
@@ -359,7 +357,8 @@ class Scenario:
         self._check_reach()
 
     def check_ranges(self) -> None:
-        """Every number in its field's :class:`Range` (before anything computes with them)."""
+        """Every number in its field's :class:`Range` and every text at most MAX_TEXT_CHARS long
+        (before anything computes with them)."""
         for key, path in YAML_FIELDS.items():
             owner, name = _owner(self, path)
             rng = _fields(type(owner))[name].metadata.get("range")
@@ -543,7 +542,11 @@ def _check_range(value, rng: Range | None, path: str) -> None:
             _check_range(v, rng, f"{path}[{i}]")
     elif isinstance(value, dict):
         for k, v in value.items():
+            _check_range(k, None, f"{path} key {_brief(k)}")
             _check_range(v, rng, f"{path}.{k}")
+    elif isinstance(value, str):
+        if len(value) > MAX_TEXT_CHARS:
+            raise ScenarioError(f"{path}: {len(value):,} characters, at most {MAX_TEXT_CHARS:,}")
     elif rng is not None and value is not None:
         rng.check(value, path)
 
@@ -556,7 +559,12 @@ def _known(data: dict, names, prefix: str) -> None:
     unknown = sorted(str(k) for k in set(data) - set(names))
     if unknown:
         known = ", ".join(sorted(names))
-        raise ScenarioError(f"{prefix}{unknown[0]}: unknown field (known: {known})")
+        raise ScenarioError(f"{prefix}{_brief(unknown[0])}: unknown field (known: {known})")
+
+
+def _brief(text: str) -> str:
+    """``text`` for a message, its middle cut if long."""
+    return text if len(text) <= 60 else f"{text[:28]}...{text[-28:]}"
 
 
 _SHORT = reprlib.Repr()

@@ -685,6 +685,8 @@ def test_caps_are_checked_on_loading() -> None:
     assert _error({"objects": many}).startswith("objects: 201 objects, at most 200")
     assert _error({"rules": ["G true & " * 2000 + "true"]}).startswith(
         "rules[0]: 18,004 characters, at most 10,000")
+    assert _error({"objects[0].name": "y" * 20_000}).startswith(
+        "objects[0].name: 20,000 characters, at most 10,000")
     assert _error({"random_objects": {"count": 14}, "task_form": "subsets", "m_o": 7,
                    "n_o": 14}, "table1_vd").startswith(
         "task_form: subsets makes φ_task a disjunction of 3,432 subsets")  # C(14, 7)
