@@ -522,7 +522,13 @@ class _Sturdy:
 @contextlib.contextmanager
 def _sturdy_streams():
     saved = sys.stdout, sys.stderr
-    sys.stdout, sys.stderr = _Sturdy(sys.stdout), _Sturdy(sys.stderr)
+    for fd in (1, 2):  # started closed (``>&-``): a file opened later would take its number
+        try:
+            os.fstat(fd)
+        except OSError:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), fd)
+    # Python leaves a stream that started closed None
+    sys.stdout, sys.stderr = (_Sturdy(s or open(os.devnull, "w")) for s in saved)
     try:
         yield
     finally:

@@ -70,7 +70,8 @@ def write_with(path: str | Path | Output, writer: Callable[[Path], None],
 def _beside(target: Path, suffix: str) -> Path:
     """A new empty file in ``target``'s directory, with ``target``'s mode if it exists (else
     0o666 less the umask, as open() makes it)."""
-    tmp = target.with_name(f".{target.name}.{secrets.token_hex(6)}{suffix}")
+    # within the 255 bytes of a file name, whatever the target's length
+    tmp = target.with_name(f".{target.name[:64]}.{secrets.token_hex(6)}{suffix}")
     os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
     try:
         if target.is_file():

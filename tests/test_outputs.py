@@ -316,10 +316,41 @@ def test_a_closed_stdout_does_not_cost_the_plan(tmp_path) -> None:
     assert data["verified"] is True and not data["partial"]
 
 
+@pytest.mark.slow
+def test_a_stdout_closed_from_the_start_does_not_cost_the_plan(scene) -> None:
+    """``dualarm-mpc plan ... >&-``: before, a traceback (Python's sys.stdout is None) and no
+    plan.json."""
+    scenario, before = scene
+    d = scenario.parent
+    done = subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", "plan", scenario.name,
+                           "--out", "plan.json"], cwd=d, stderr=subprocess.PIPE, text=True,
+                          timeout=LIMIT_S, preexec_fn=lambda: os.close(1))
+    assert done.returncode == 0, done.stderr
+    assert json.loads((d / "plan.json").read_text())["verified"] is True
+    nothing_lost(d, scenario, before)
+
+
+def test_a_long_check_says_it_is_still_checking(monkeypatch, capsys) -> None:
+    from dualarm_mpc import cli as cli_module
+    from dualarm_mpc import consistency
+
+    monkeypatch.setattr(cli_module, "HEARTBEAT_S", 0.0)  # every tick: the line a long check prints
+    check = consistency.check
+
+    def slow_check(*args, **kwargs):  # a check longer than a 0.1 s tick
+        time.sleep(0.5)
+        return check(*args, **kwargs)
+
+    monkeypatch.setattr(consistency, "check", slow_check)
+    assert main(["check", str(BASE)]) == 0
+    assert "checking the task against the rules: 0 s so far" in capsys.readouterr().out
+
+
 # --- the exit-code table (cli module docstring, docs/cli.md): each row --------------------------
 
 JOINT_CONFLICT = ["--set", "rules: ['G !eta[2,1]', 'G !eta[2,2]']",  # arm 1 carries both
-                  "--set", "solver.max_horizon: 8"]  # each alone in 8 steps, both not
+                  "--set", "solver.max_horizon: 8",  # each alone in 8 steps, both not
+                  "--time-limit", "100"]  # each horizon proven infeasible, on a busy machine too
 NOTHING_TO_DO = ["--set", "objects: [{name: a, position: [0.3, 0.6], goal: red}]", "--mo", "1",
                  "--no", "1"]
 NO_TIME = ["--time-limit", "0.000001"]
