@@ -21,11 +21,11 @@ from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import build_program, solve_step
 from dualarm_mpc.linear import Rows, bound, new_variables
-from dualarm_mpc.ltl import Atom, F, Formula, G, Not, atoms, nnf, parse
+from dualarm_mpc.ltl import Atom, F, G, atoms, nnf, parse
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, apply_overrides
 from dualarm_mpc.solver import SolveOptions, Status, solve
-from dualarm_mpc.spec import specification
+from dualarm_mpc.spec import negated_atoms, specification
 
 P, Q, R = Atom("p"), Atom("q"), Atom("r")
 ATOMS = [P, Q, R]
@@ -80,25 +80,6 @@ def geometric_program(trace: dict[Atom, list[bool]], T: int, geometric: frozense
         return Literal(int(index[row[atom], k]), geometric=atom in geometric)
 
     return prog, resolve
-
-
-def negated_atoms(f: Formula) -> set[Atom]:
-    """The atoms under a negation in the NNF of ``f``."""
-    out: set[Atom] = set()
-
-    def walk(g) -> None:
-        if isinstance(g, Not):
-            out.add(g.arg)
-            return
-        for child in getattr(g, "args", ()) or ():
-            walk(child)
-        for name in ("arg", "lhs", "rhs"):
-            child = getattr(g, name, None)
-            if isinstance(child, Formula):
-                walk(child)
-
-    walk(nnf(f))
-    return out
 
 
 # --- decision atoms: exact ------------------------------------------------------------------------
@@ -188,7 +169,7 @@ def test_geometric_atoms_sound_and_complete_in_positive_position(f, horizon_trac
     T, trace = horizon_trace
     k = data.draw(st.integers(0, T), label="k")
     geometric = frozenset({Q, R})
-    bad = negated_atoms(f) & geometric
+    bad = negated_atoms(nnf(f)) & geometric
     prog, resolve = geometric_program(trace, T, geometric)
     enc = Encoder(prog, T, resolve)
     if bad:
