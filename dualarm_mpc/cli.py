@@ -20,6 +20,7 @@ import dataclasses
 import logging
 import math
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -118,7 +119,8 @@ class _Once(argparse.Action):
 
 
 def _plot(path: str) -> str:
-    """An output file whose suffix names a format matplotlib writes."""
+    """An output file whose suffix names a format matplotlib writes here (PGF needs a TeX)."""
+    from matplotlib import rcParams
     from matplotlib.backend_bases import FigureCanvasBase
 
     formats = FigureCanvasBase.get_supported_filetypes()
@@ -126,6 +128,9 @@ def _plot(path: str) -> str:
     if suffix not in formats:
         raise argparse.ArgumentTypeError(f"unknown plot format {suffix or '(no suffix)'!r} "
                                          f"(one of {', '.join(sorted(formats))})")
+    tex = rcParams["pgf.texsystem"]
+    if suffix == "pgf" and shutil.which(tex) is None:
+        raise argparse.ArgumentTypeError(f"plot format 'pgf' needs {tex}, which is not installed")
     return _output(path)
 
 

@@ -295,7 +295,7 @@ def test_a_signal_during_the_check_ends_the_run_at_once(tmp_path) -> None:
     time.sleep(2)  # into the check, which takes a minute
     stdout, stderr = stop(proc, signal.SIGTERM)
     assert proc.returncode == 143, stderr
-    assert "interrupted by SIGTERM: nothing was written" in stderr
+    assert "interrupted by SIGTERM" in stderr and "Traceback" not in stderr
     assert list(tmp_path.iterdir()) == []
 
 
@@ -417,6 +417,15 @@ def test_an_output_keeps_its_error_and_a_symlink_its_target(tmp_path) -> None:
     missing = outputs.Output(str(tmp_path / "gone" / "x.json"), "--out")
     outputs.write(missing, "{}")  # kept, not raised: the run goes on to its other outputs
     assert missing.error is not None and missing.error.filename == missing.path
+
+
+@pytest.mark.skipif(shutil.which("xelatex") is not None, reason="xelatex installed: PGF works")
+def test_a_plot_format_that_cannot_be_written_here_is_refused_before_any_work(capsys) -> None:
+    """Before: the plan was made, then matplotlib's traceback (no xelatex for PGF)."""
+    with pytest.raises(SystemExit) as exit_:
+        main(["plan", str(BASE), "--plot", "plan.pgf"])
+    assert exit_.value.code == 2
+    assert "argument --plot: plot format 'pgf' needs xelatex" in capsys.readouterr().err
 
 
 def test_nothing_to_do_with_a_plot_writes_it(tmp_path, capsys) -> None:
