@@ -7,7 +7,6 @@ short settle) after the planner is done; or the run stops at ``duration``.
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from collections.abc import Callable
@@ -71,7 +70,7 @@ class Summary:
 
     def save(self, path: str | Path) -> None:
         """Write the summary JSON, whole or not at all."""
-        outputs.write(path, json.dumps(self.to_json(), indent=1))
+        outputs.write(path, outputs.json_text(self.to_json()))
 
 
 @dataclass(frozen=True)

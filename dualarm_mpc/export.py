@@ -16,7 +16,6 @@ that fails ends the export (kept in ``error``), not the plan.
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 
@@ -83,4 +82,4 @@ class MpsExport:
                         "hand-overs the search leaves out' (docs/search.md)",
             "horizons": self.entries,
         }
-        outputs.write(self.directory / INDEX, json.dumps(index, indent=1))
+        outputs.write(self.directory / INDEX, outputs.json_text(index))

@@ -10,6 +10,8 @@ opening a device writes to it.
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import secrets
 import stat
@@ -36,6 +38,21 @@ class Output(os.PathLike):
 
     def __str__(self) -> str:
         return self.path
+
+
+def json_text(data) -> str:
+    """``data`` as JSON that every parser reads (RFC 8259 has no NaN or Infinity): a number
+    that is not finite (a gap without a bound, a cost without a plan) is null."""
+    def finite(x):
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: finite(v) for k, v in x.items()}
+        if isinstance(x, list | tuple):
+            return [finite(v) for v in x]
+        return x
+
+    return json.dumps(finite(data), indent=1, allow_nan=False)
 
 
 def write(path: str | Path | Output, data: str | bytes) -> None:

@@ -99,6 +99,13 @@ class Segment:
             "cpu_time_s": round(self.cpu_time_s, 4),
         }
 
+    @staticmethod
+    def from_json(data: dict) -> Segment:
+        """:meth:`to_json` read back; a gap without a bound is written null (JSON has no
+        Infinity: ``outputs.json_text``)."""
+        gap = data.get("gap", 0.0)
+        return Segment(**{**data, "gap": math.inf if gap is None else gap})
+
 
 @dataclass(frozen=True)
 class Plan:
@@ -151,7 +158,7 @@ class Plan:
 
     def save(self, path: str | Path) -> None:
         """Write the plan JSON, whole or not at all."""
-        outputs.write(path, json.dumps(self.to_json(), indent=1))
+        outputs.write(path, outputs.json_text(self.to_json()))
 
     @staticmethod
     def from_json(data: dict) -> Plan:
@@ -164,7 +171,7 @@ class Plan:
             workspace=data["workspace"],
             trajectory=Trajectory.from_json(data["trajectory"]),
             delivered_step=data["delivered_step"],
-            segments=[Segment(**s) for s in data.get("segments", [])],
+            segments=[Segment.from_json(s) for s in data.get("segments", [])],
             verified=data.get("verified", False),
             search=data.get("search", "monolithic"),
             partial=data.get("partial", False),

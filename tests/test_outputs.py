@@ -428,6 +428,13 @@ def test_a_plot_format_that_cannot_be_written_here_is_refused_before_any_work(ca
     assert "argument --plot: plot format 'pgf' needs xelatex" in capsys.readouterr().err
 
 
+def test_json_outputs_have_no_infinity_or_nan() -> None:
+    """RFC 8259 has neither: ``jq`` and most parsers refuse a file with them."""
+    data = {"gap": float("inf"), "cost": [1.5, float("nan")], "name": "a"}
+    assert json.loads(outputs.json_text(data), parse_constant=pytest.fail) == \
+        {"gap": None, "cost": [1.5, None], "name": "a"}
+
+
 def test_nothing_to_do_with_a_plot_writes_it(tmp_path, capsys) -> None:
     path = tmp_path / "s.yaml"
     shutil.copy(BASE, path)
