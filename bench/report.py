@@ -130,7 +130,7 @@ def render_paper(results: Path) -> str:
                        == (s["m_o"], s["n_o"], s["rule"]))
         rows.append([f"({s['m_o']},{s['n_o']})", str(s["rule"]), seed_text(seeds),
                      f"{s['ok']}/{s['runs']}", fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]),
-                     fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".3g"),
+                     fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".4g"),
                      fmt(s["mean_cpu_time_s"], ".1f"), f"{s['steps_optimal']}/{s['steps']}"])
     sources = [provenance(name, load(results, name), commit=False) for name in files]
     return (table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n")

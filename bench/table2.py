@@ -287,7 +287,7 @@ def table2(summary: list[dict], form: str) -> str:
               "CPU time (s)", "times taken", "steps = monolithic"]
     rows = [[f"({s['m_o']},{s['n_o']})", str(s["rule"]), f"{s['ok']}/{s['runs']}",
              fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]), fmt(s["cost_ratio"]),
-             fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".3g"), fmt(s["time_ratio"]),
+             fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".4g"), fmt(s["time_ratio"]),
              f"{s['steps_optimal']}/{s['steps']}", fmt(s["mean_cpu_time_s"], ".1f"),
              machine_use(s["runs_per_host"]), agreement(s)]
             for s in summary if s["task_form"] == form]
