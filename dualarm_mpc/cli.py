@@ -455,8 +455,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"their goals, real-time factor {summary.realtime_factor:.2f}")
     partial = " (partial)" if summary.interrupted else ""
     written = _write(_output_of(args, "summary"), summary.save, partial)
-    written = _write(html, None, f"{partial} (open it in a browser: it plays the run from the "
-                     "start)") and written
+    written = _write(html, None, f" ({'partial; ' if summary.interrupted else ''}open it in a "
+                     "browser: it plays the run from the start)") and written
     if summary.interrupted:
         print(f"interrupted by {_signal_name()} at t = {summary.sim_time_s:.1f} s: the summary "
               "and replay end there", file=sys.stderr)

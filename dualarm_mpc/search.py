@@ -831,10 +831,11 @@ def _searching(scenario: Scenario, state: State, spec: Specification, horizon: i
 
 
 def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                      time_limit_s: float) -> bool:
+                      time_limit_s: float, options: SolveOptions | None = None) -> bool:
     """Whether the one-hand and one-object relaxations prove that ``horizon`` has no plan
-    (within ``time_limit_s``; False when they cannot tell)."""
-    options = replace(solver_options(scenario), time_limit_s=time_limit_s)
+    (within ``time_limit_s``; False when they cannot tell, or ``options.interrupt`` stops
+    them)."""
+    options = replace(options or solver_options(scenario), time_limit_s=time_limit_s)
     with _searching(scenario, state, spec, horizon, options) as search:
         return search.ruled_out()
 

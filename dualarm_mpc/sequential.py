@@ -132,7 +132,7 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
         _stop_if_asked(options)
         if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
             check_cap = False  # once
-            if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S):
+            if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S, options):
                 raise PlanningError(diagnose(scenario, state, spec, None, options), proven=True)
         res = solve_horizon(scenario, state, spec, T, options, below=below)
         _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent

@@ -281,7 +281,7 @@ def test_a_signal_during_a_simulation_writes_the_summary_and_replay(robot, sig, 
     assert "Traceback" not in stderr and f"interrupted by {sig.name} at t =" in stderr
     data = json.loads((d / "summary.json").read_text())
     assert data["interrupted"] is True and data["sim_time_s"] > 0
-    assert "wrote replay.html (partial)" in stdout
+    assert "wrote summary.json (partial)" in stdout and "wrote replay.html (partial;" in stdout
     nothing_lost(d, scenario, before)
 
 
