@@ -2,14 +2,14 @@
 
 Rules are common sense kept across tasks (§I-B), so a rule that cannot hold together with a new
 task must be caught before the robot moves, and named. Each object is checked on its own: a
-one-object step from the current state — deliver it, under every rule instance over that object
-alone — at the largest horizon; then the first sequential step as a whole. These programs carry
+one-object step — deliver it, under every rule instance over that object alone — at the largest
+horizon; then the first sequential step as a whole. These programs carry
 no cost: HiGHS stops at the first solution (tens of milliseconds), and only a conflict takes an
 infeasibility proof (about a second).
 
 A conflict is reported only with a proof: every program whose infeasibility is reported is a
-*relaxation* of the real one — the step that would deliver the objects named, from this state,
-at some horizon up to ``solver.max_horizon`` — it may drop constraints, never add one:
+*relaxation* of the real one — the sequential step that would deliver the objects named, at
+some horizon up to ``solver.max_horizon`` — it may drop constraints, never add one:
 
 * **One object j** (:func:`_check_object`): the model over the hands and j alone, whose rows are
   the real step's rows over these variables (other objects enter the model only through the sums
@@ -19,10 +19,12 @@ at some horizon up to ``solver.max_horizon`` — it may drop constraints, never 
   that object's atoms as constants (η false, θ its value now) — an instance such as ``F
   eta[1,1]`` or ``F theta[1] | …`` would then be false in object 2's program although a step
   over both can satisfy it. A plan of the real step, cut down to the hands and j, is a plan of
-  this program. When one step holds the whole task (m_o = n_o, every object left), that step
-  delivers j, so a conflict here proves the task has no plan; with several steps it proves only
-  that no step from this state delivers j: a later step starts with the hands elsewhere, which
-  these programs do not model.
+  this program. If the first step delivers j (m_o covers every object of the step), the
+  program starts from this state; otherwise a later step may deliver j, with the hands starting
+  wherever the steps before left them (at rest, as the hands are now): the program lets them
+  start anywhere in their range (``hands_anywhere``), so it relaxes every such step too. What
+  it does not model is an earlier step that moves j without delivering it (possible when
+  m_o < n_o): j starts where it is now.
 * **Who holds it** (:func:`_cases`): the one-object program is solved as three restrictions —
   hand 2 never holds j after now, hand 1 never does, both do at some time — whose plans together
   are exactly its plans; it is infeasible when all three are.
@@ -105,19 +107,22 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     T = scenario.solver.max_horizon
     named = rule_formulas(scenario)
     todo = [int(j) for j in np.flatnonzero(~at_rest_in_goal(scenario, state))]
+    first = select_objects(scenario, state, todo)
+    # Objects the first step delivers from this state; any other may be delivered by a later
+    # step, whose hands start elsewhere.
+    now = set(first) if min(scenario.task.m_o, len(first)) == len(first) else set()
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        verdicts = list(pool.map(lambda j: _check_object(scenario, state, j, named, options),
-                                 todo))
+        verdicts = list(pool.map(lambda j: _check_object(scenario, state, j, named, options,
+                                                         anywhere=j not in now), todo))
     conflicts = tuple(v for v in verdicts if isinstance(v, Conflict))
     undecided = tuple(scenario.task.objects[j].name for j, v in zip(todo, verdicts, strict=True)
                       if v is Status.TIME_LIMIT)
     if joint and todo and not conflicts and not undecided:
-        objects = select_objects(scenario, state, todo)
-        spec = confined(specification(scenario, objects, rules=named))
+        spec = confined(specification(scenario, first, rules=named))
         quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s,
                                                               JOINT_TIME_LIMIT_S))
         status = _feasible(scenario, state, spec, quick)
-        names = tuple(scenario.task.objects[j].name for j in objects)
+        names = tuple(scenario.task.objects[j].name for j in first)
         if status is Status.INFEASIBLE:
             conflicts = (_joint_conflict(scenario, state, spec, names, quick),)
         elif status is Status.TIME_LIMIT:
@@ -125,15 +130,16 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     return Report(conflicts, undecided, T)
 
 
-def _feasible(scenario: Scenario, state: State, spec: Specification,
-              options: SolveOptions) -> Status:
+def _feasible(scenario: Scenario, state: State, spec: Specification, options: SolveOptions,
+              anywhere: bool = False) -> Status:
     """Whether ``spec`` has a plan within the largest horizon, decided by its MILPs without
     cost (the first solution ends a search): FEASIBLE, INFEASIBLE or TIME_LIMIT. The largest
-    horizon alone decides when feasibility is monotone in T; otherwise every horizon is tried."""
+    horizon alone decides when feasibility is monotone in T; otherwise every horizon is tried.
+    ``anywhere``: from every start of the hands in their range (``state``'s velocities)."""
     cap = scenario.solver.max_horizon
     undecided = False
     for T in [cap] if spec.monotone_in_horizon() else range(1, cap + 1):
-        program = HorizonProgram(scenario, state, list(spec.objects), T)
+        program = HorizonProgram(scenario, state, list(spec.objects), T, hands_anywhere=anywhere)
         for case, allowed in _cases(spec):
             res = program.solve(case, options, hands=(), allowed=allowed)
             if res.status.has_solution:
@@ -157,33 +163,34 @@ def _cases(spec: Specification) -> list[tuple[Specification, np.ndarray | None]]
             (both, None)]
 
 
-def _minimal(scenario: Scenario, state: State, spec: Specification,
-             options: SolveOptions) -> Specification:
+def _minimal(scenario: Scenario, state: State, spec: Specification, options: SolveOptions,
+             anywhere: bool = False) -> Specification:
     """``spec``, proven infeasible, with a minimal set of its rules that keeps it so (a deletion
     filter: a rule stays only if dropping it makes a plan). Rules without an instance here are
     dropped at once: they constrain nothing."""
     needed = [r for r in spec.rules if r[1] != TRUE]
     for rule in list(needed):
         rest = tuple(r for r in needed if r is not rule)
-        if _feasible(scenario, state, dataclasses.replace(spec, rules=rest),
-                     options) is Status.INFEASIBLE:
+        if _feasible(scenario, state, dataclasses.replace(spec, rules=rest), options,
+                     anywhere) is Status.INFEASIBLE:
             needed = list(rest)
     return dataclasses.replace(spec, rules=tuple(needed))
 
 
 def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[str, Formula]],
-                  options: SolveOptions) -> Conflict | Status:
-    """Object j on its own: FEASIBLE, TIME_LIMIT, or the conflict with a minimal rule set."""
+                  options: SolveOptions, anywhere: bool) -> Conflict | Status:
+    """Object j on its own (``anywhere``: with the hands starting anywhere): FEASIBLE,
+    TIME_LIMIT, or the conflict with a minimal rule set."""
     spec = confined(specification(scenario, [j], m_o=1, rules=named))
-    status = _feasible(scenario, state, spec, options)
+    status = _feasible(scenario, state, spec, options, anywhere)
     if status is not Status.INFEASIBLE:
         return status
-    needed = _minimal(scenario, state, spec, options)
+    needed = _minimal(scenario, state, spec, options, anywhere)
     # Does any hand ever hold it under these rules? (No task: m_o = 0.)
     held = dataclasses.replace(needed, m_o=0, targets=(), rules=needed.rules + (
         ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),))
     never_held = (bool(needed.rules)
-                  and _feasible(scenario, state, held, options) is Status.INFEASIBLE)
+                  and _feasible(scenario, state, held, options, anywhere) is Status.INFEASIBLE)
     names = tuple(name for name, _ in needed.rules)
     return Conflict((scenario.task.objects[j].name,), names,
                     _reason(scenario, j, names, never_held))

@@ -100,12 +100,14 @@ class HorizonProgram:
     search (``search.py``) go through it."""
 
     def __init__(self, scenario: Scenario, state: State, objects: list[int], horizon: int,
-                 pruning: bool | None = None) -> None:
+                 pruning: bool | None = None, hands_anywhere: bool = False) -> None:
         self.scenario, self.state, self.horizon = scenario, state, horizon
         self.objects = list(objects)
         self.model = Model.from_scenario(scenario, self.objects)
         self.local_state = state.select(self.objects)
-        reach = reachability(self.model, self.local_state, horizon)
+        # hands_anywhere: the hands start anywhere in their range, with state's velocities (for
+        # feasibility: solve's trajectory still replays from state's positions)
+        reach = reachability(self.model, self.local_state, horizon, hands_anywhere)
         self.prog = MathematicalProgram()
         x = self.x = program.new_horizon_variables(self.prog, horizon, len(self.objects))
         pruning = scenario.task.pruning if pruning is None else pruning

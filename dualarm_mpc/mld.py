@@ -211,12 +211,15 @@ class Reach:
         return np.arange(len(self.hand_lo))[:, None] >= self.first_goal[None]
 
 
-def reachability(model: Model, state: State, horizon: int) -> Reach:
+def reachability(model: Model, state: State, horizon: int,
+                 hands_anywhere: bool = False) -> Reach:
     """Reachable boxes from straight-line motion at bounded speed and force (§IV-C.2).
 
     An object moves only once a hand holds it (or by its measured velocity in the first step), so
     before its earliest possible grab it stays put; afterwards it moves at most v_max·Δt per step.
-    Hand i can hold object j at k only if its reachable box, widened by H_ij, meets the object's."""
+    Hand i can hold object j at k only if its reachable box, widened by H_ij, meets the object's.
+    ``hands_anywhere``: the hands may start anywhere in their range (``state``'s hand positions
+    ignored), so every hand box is the whole range."""
     T = horizon
     n = model.n_objects
     ws = model.workspace
@@ -226,6 +229,8 @@ def reachability(model: Model, state: State, horizon: int) -> Reach:
         down, up = hand_reach(model, state.hand_vel[i], T)
         hand_lo[:, i] = np.maximum(state.hand_pos[i] - down, ws.lo)
         hand_hi[:, i] = np.minimum(state.hand_pos[i] + up, ws.hi)
+    if hands_anywhere:
+        hand_lo[:], hand_hi[:] = ws.lo, ws.hi
     half = model.grasp_half
     p0 = state.object_pos
     # Step 0's velocity is measured; it carries the object into step 1.

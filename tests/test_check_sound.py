@@ -43,7 +43,8 @@ SCENES = {
 
 
 def small(objects: list[dict], **fields) -> Scenario:
-    """:data:`SMALL` with ``objects``, their whole task in one step (m_o = n_o = all)."""
+    """:data:`SMALL` with ``objects``, their whole task in one step (m_o = n_o = all) unless
+    ``fields`` say otherwise."""
     n = len(objects)
     return apply_overrides(Scenario(), {**SMALL, "objects": objects, "m_o": n, "n_o": n, **fields})
 
@@ -124,5 +125,20 @@ def test_a_rule_about_another_object_is_no_conflict(rule: str) -> None:
     report = check(scenario)
     assert report.consistent and not report.undecided, report.conflicts
     p = plan(scenario)
+    verdict = verify(scenario, p)
+    assert verdict.ok, verdict.problems
+
+
+def test_an_object_a_later_step_delivers_is_checked_from_anywhere() -> None:
+    """b is out of reach within 4 steps from where the hands start, but the step that delivers
+    a first (n_o = 1) leaves a hand near b: the sequential plan delivers both. b's own program
+    lets the hands start anywhere, as a later step may."""
+    scenario = small([A, {"name": "b", "position": [0.4, 0.55], "goal": "reach"}], m_o=1, n_o=1,
+                     rule=1, goals={"red": [0.15, 0.35, 0.3, 0.5], "reach": [0.4, 0.6, 0.65, 0.8]},
+                     workspace=[-0.5, 0.6, -0.3, 0.8])
+    report = check(scenario)
+    assert report.consistent and not report.undecided, report.conflicts
+    p = plan(scenario)
+    assert len(p.segments) == 2
     verdict = verify(scenario, p)
     assert verdict.ok, verdict.problems
