@@ -22,8 +22,8 @@ Randomness: one RNG per run, ``numpy.random.SeedSequence([7, seed])`` (apart fro
 own draw from ``seed``); each disturbance draws from its own child of it, so one disturbance's
 draws never shift another's. Both rules of a seed get the same disturbances (kinds, due times,
 distances, directions). Which object a knock hits is read from the simulated state when it
-fires; the replan budget is wall time, so a run that diverges (another machine, another load)
-may hit another object at the same time.
+fires; runs are lockstep (the default), so that is the same on any machine and under any load
+(with ``--set 'solver.realtime: true'`` it is not).
 
 **Stuck** (decided from the model's bounds at each event, never from how the run ended): an
 object is stuck when, where a knock left it, or where it rests when its goal moves, no plan

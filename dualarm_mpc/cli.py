@@ -421,13 +421,16 @@ def _output_of(args: argparse.Namespace, flag: str) -> outputs.Output | None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from dualarm_mpc.closed_loop import on_robot, simulate
+    from dualarm_mpc.closed_loop import check_events, on_robot, simulate
     from dualarm_mpc.scenario import apply_overrides
 
     base = _load(args, overrides=False)
     overrides = on_robot(base)
+    if args.realtime or args.meshcat:  # before the flags: --set 'solver.realtime: false' wins
+        merge_overrides(overrides, {"solver": {"realtime": True}})
     merge_overrides(overrides, _overrides(args))
     scenario = apply_overrides(base, overrides)
+    check_events(scenario, args.duration)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.task.rule}, "
           f"(m_o, n_o) = ({scenario.task.m_o}, {scenario.task.n_o})")
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
@@ -451,8 +454,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     html = _output_of(args, "html")
     summary = simulate(scenario, args.duration, html, progress, meshcat=meshcat)
     n_in = sum(d is not None for d in summary.delivered_time_s)
+    wall = summary.wall_clock
     print(f"end: t = {summary.sim_time_s:.1f} s, {n_in}/{scenario.n_objects} objects resting in "
-          f"their goals, real-time factor {summary.realtime_factor:.2f}")
+          f"their goals, {summary.mode}; wall time {wall['wall_time_s']:.1f} s, real-time factor "
+          f"{wall['realtime_factor']:.2f}")
     partial = " (partial)" if summary.interrupted else ""
     written = _write(_output_of(args, "summary"), summary.save, partial)
     written = _write(html, None, f" ({'partial; ' if summary.interrupted else ''}open it in a "
@@ -567,7 +572,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--summary", type=_output, action=_Once, help="write the summary JSON here")
     p.add_argument("--meshcat", action="store_true",
                    help="start Drake's Meshcat server, print its URL and draw the run there live, "
-                   "at real time")
+                   "at real time (implies --realtime)")
+    p.add_argument("--realtime", action="store_true",
+                   help="replan against the wall clock (a replan holds the simulation for "
+                   "solver.replan_budget_s at most): the run depends on the machine's speed and "
+                   "load. Default: lockstep, the same run on any machine")
     p.set_defaults(run=cmd_simulate, parser=p)
     return parser
 

@@ -1,8 +1,13 @@
 """Closed-loop simulation of a scenario: the Diagram run in time, environment events, summary JSON.
 
-Progress is reported per replan (sim time, objects delivered, solve wall time). A ``Simulator``
-monitor records the replans, applies the events and ends the run when every object rests (plus a
-short settle) after the planner is done; or the run stops at ``duration``.
+Progress is reported per replan (sim time, objects delivered, solve wall time). The simulation
+advances from one environment event to the next (``AdvanceTo``) and applies each between the
+segments; a ``Simulator`` monitor only looks: it records the replans and ends the run when every
+object rests (plus a short settle) after the planner is done; or the run stops at ``duration``.
+
+Lockstep (the default, docs/drake.md): the same scenario gives the same run, summary and replay
+on any machine under any load. The wall-clock figures (``Summary.wall_clock``) depend on the
+machine; the summary JSON carries them only in real time (``solver.realtime``).
 """
 
 from __future__ import annotations
@@ -18,14 +23,14 @@ import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.math import RigidTransform
 from pydrake.multibody.math import SpatialVelocity
-from pydrake.systems.analysis import Simulator
+from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import Context, EventStatus
 
 from dualarm_mpc import outputs, recording
 from dualarm_mpc.diagram import DualArm, MakeDiagram
 from dualarm_mpc.mld import REST_SPEED, at_rest, delivered
 from dualarm_mpc.mpc import Replan, Solve
-from dualarm_mpc.scenario import Event, Scenario
+from dualarm_mpc.scenario import Event, Scenario, ScenarioError
 from dualarm_mpc.systems.state_estimator import split_measured_state
 
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
@@ -46,27 +51,35 @@ SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
 
 @dataclass(frozen=True)
 class Summary:
+    mode: str  # "lockstep" or "realtime" (``solver.realtime``)
+    replan_latency_s: float  # simulated time from a replan to its plan in force
     goals: dict[str, list[float]]
     objects: list[dict]
     final_object_pos: list[list[float]]
     final_object_speed: list[float]
     delivered_time_s: list[float | None]
     replans: list[dict]
-    realtime_factor: float
     sim_time_s: float
-    wall_time_s: float
     all_delivered: bool
     events: list[dict]
-    # Replans that reached their wall-time budget: the robot followed the plan in force (or
-    # waited at rest) while the search went on. Their times, as in ``replans``.
+    # Real time: replans that reached their wall-time budget, the robot following the plan in
+    # force (or waiting at rest) while the search went on. Their times, as in ``replans``.
     replans_over_budget: list[float] = field(default_factory=list)
     interrupted: bool = False  # stopped by Ctrl-C at ``sim_time_s``
     # The least distance between the two arms' collision geometries over the run, sampled every
     # 20 ms by SceneGraph (systems/clearance.py); None if the run took no sample.
     min_arm_clearance_m: float | None = None
+    # What the run took on this machine, which depends on its speed and load: ``wall_time_s``,
+    # ``realtime_factor`` (simulated / wall time) and ``replan_wall_s`` (one per replan, as in
+    # ``replans``). In the JSON only in real time, where it explains the run; in lockstep the
+    # JSON is the same on every machine, and the command prints these instead.
+    wall_clock: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        return dict(self.__dict__)
+        data = dict(self.__dict__)
+        if self.mode == "lockstep":
+            del data["wall_clock"]
+        return data
 
     def save(self, path: str | Path) -> None:
         """Write the summary JSON, whole or not at all."""
@@ -121,24 +134,61 @@ def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
             recording.show_goal(meshcat, event.target, event.box, context.get_time())
 
 
+def check_events(scenario: Scenario, duration: float | None = None) -> None:
+    """An event at or after the run's end would never happen: a bad input (``ScenarioError``,
+    naming the event's field and the duration)."""
+    duration = default_duration(scenario) if duration is None else duration
+    for e, event in enumerate(scenario.events):
+        if event.time >= duration:
+            raise ScenarioError(f"events[{e}].time: {event.time:g} s is not before the run's end "
+                                f"(duration {duration:g} s; set --duration)")
+
+
+class _Events:
+    """The run's environment events, the scenario's and the disturbance's, in time order: the
+    simulation advances to :meth:`next_time` and calls :meth:`apply_due` between ``AdvanceTo``
+    segments (events at one time: the scenario's in the file's order, then the disturbance's)."""
+
+    def __init__(self, scenario: Scenario, dual, meshcat, disturb) -> None:
+        self.scenario, self.dual, self.meshcat, self.disturb = scenario, dual, meshcat, disturb
+        self.fixed = sorted(scenario.events, key=lambda e: e.time)
+        self.next = 0
+        self.applied: list[Event] = []  # the disturbance's events
+
+    def next_time(self) -> float | None:
+        """When the next event is due; None when none is left."""
+        times = [self.fixed[self.next].time] if self.next < len(self.fixed) else []
+        look = None if self.disturb is None else self.disturb.next_time()
+        return min(times + ([] if look is None else [look]), default=None)
+
+    def apply_due(self, context) -> None:
+        t = context.get_time()
+        while self.next < len(self.fixed) and self.fixed[self.next].time <= t:
+            _apply(self.fixed[self.next], self.scenario, self.dual, context, self.meshcat)
+            self.next += 1
+        d = self.disturb
+        while d is not None and (look := d.next_time()) is not None and look <= t:
+            for e in d(_world(self.dual, context)):
+                _apply(e, self.scenario, self.dual, context, self.meshcat)
+                self.applied.append(e)
+            after = d.next_time()
+            if after is not None and after <= look:
+                raise ValueError(f"disturb: next_time() stayed at {after} after a call")
+
+
 class _Monitor:
     """The run's ``Simulator`` monitor, called after every simulator step (the plant steps every
-    2 ms; nothing changes in between): records every replan from the planner's ``replan`` output
-    (and tells ``progress``), applies the scenario's events and the disturbance's at the first
-    step at or after their times, lets ``observe`` look, and ends the run
+    2 ms; nothing changes in between). It only looks: records every replan from the planner's
+    ``replan`` output (and tells ``progress``), lets ``observe`` look, and ends the run
     (``EventStatus.ReachedTermination``) once the replans have said ``done`` or ``stuck`` for
     ``SETTLE_S``, with every object at rest and no event pending. That end is judged at the first
     simulator step after each replan, on the state the replan saw: judged at the replan's own
     time, the last replan is Δt old, and an object that crept out of its goal since ended the
     run outside it (measured: 0.4 mm past a goal's edge at 2.5 mm/s)."""
 
-    def __init__(self, scenario: Scenario, dual, meshcat, progress, disturb, observe) -> None:
-        self.scenario, self.dual, self.meshcat = scenario, dual, meshcat
-        self.progress, self.disturb, self.observe = progress, disturb, observe
-        self.events = sorted(scenario.events, key=lambda e: e.time)
-        self.next_event = 0
+    def __init__(self, dual, events: _Events, progress, observe) -> None:
+        self.dual, self.events, self.progress, self.observe = dual, events, progress, observe
         self.replans: list[Replan] = []
-        self.applied: list[Event] = []  # the disturbance's events
         self.finished_at: float | None = None
 
     def record(self, context) -> bool:
@@ -154,25 +204,12 @@ class _Monitor:
 
     def __call__(self, context) -> EventStatus:
         replanned = self.record(context)
-        t = context.get_time()
-        while self.next_event < len(self.events) and self.events[self.next_event].time <= t:
-            _apply(self.events[self.next_event], self.scenario, self.dual, context, self.meshcat)
-            self.next_event += 1
-        d = self.disturb
-        while d is not None and (look := d.next_time()) is not None and look <= t:
-            for e in d(_world(self.dual, context)):
-                _apply(e, self.scenario, self.dual, context, self.meshcat)
-                self.applied.append(e)
-            after = d.next_time()
-            if after is not None and after <= look:
-                raise ValueError(f"disturb: next_time() stayed at {after} after a call")
         if self.observe is not None:
             self.observe(self.dual, context)
         if not replanned:
             return EventStatus.Succeeded()
         last = self.replans[-1]
-        pending = self.next_event < len(self.events) or (d is not None
-                                                         and d.next_time() is not None)
+        pending = self.events.next_time() is not None
         if last.status in ("done", "stuck") and not pending and _all_at_rest(self.dual, context):
             self.finished_at = last.t if self.finished_at is None else self.finished_at
             if last.t - self.finished_at >= SETTLE_S - 1e-9:
@@ -191,8 +228,10 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     events decided during the run; the summary lists them after the scenario's. ``meshcat``: a
     live server to draw the run in as it goes, at real time, and to replay it at the end.
     ``observe(dual, root_context)`` is called after every simulator step (to look, not to
-    change anything); ``solve`` replaces the planner's solve of one horizon (``MakeDiagram``)."""
+    change anything); ``solve`` replaces the planner's solve of one horizon (``MakeDiagram``).
+    An event at or after the end is a ``ScenarioError`` (:func:`check_events`)."""
     duration = default_duration(scenario) if duration is None else duration
+    check_events(scenario, duration)
     live = meshcat is not None
     if not live and html:
         meshcat = recording.start_meshcat()
@@ -201,7 +240,8 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     context = simulator.get_mutable_context()
     if live:
         simulator.set_target_realtime_rate(1.0)  # at the speed a person watches
-    monitor = _Monitor(scenario, dual, meshcat, progress, disturb, observe)
+    events = _Events(scenario, dual, meshcat, disturb)
+    monitor = _Monitor(dual, events, progress, observe)
     simulator.set_monitor(monitor)
     wall0 = time.perf_counter()
     interrupted = False
@@ -210,23 +250,30 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
         if meshcat is not None:  # after: the page shows the scene at t = 0 while the replay loads
             recording.show_the_work(meshcat, dual.station)
             recording.start_recording(meshcat, live)
-        simulator.AdvanceTo(duration)
+        while True:  # from one event to the next, each applied between the segments
+            due = events.next_time()
+            until = duration if due is None else min(max(due, context.get_time()), duration)
+            status = simulator.AdvanceTo(until)
+            if until >= duration or (status.reason()
+                                     == SimulatorStatus.ReturnReason.kReachedTerminationCondition):
+                break
+            events.apply_due(context)
     except KeyboardInterrupt:  # Ctrl-C: the run so far is kept, summary and replay included
         interrupted = True
     t = context.get_time()
     monitor.record(context)  # a replan of the step Ctrl-C cut short
     wall = time.perf_counter() - wall0
-    dual.planner.close(dual.planner.GetMyContextFromRoot(context))
+    dual.planner.close()
     if meshcat is not None:
         recording.save_recording(meshcat, html)
-    return _summary(scenario, dual, context, t, wall, monitor.replans, monitor.applied,
+    return _summary(scenario, dual, context, t, wall, monitor.replans, events.applied,
                     interrupted)
 
 
 def _world(dual, context) -> World:
     m = split_measured_state(dual.stack.estimator.get_measured_state_output_port().Eval(
         dual.stack.estimator.GetMyContextFromRoot(context)), dual.station.n_objects)
-    s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
+    s = dual.planner.latest_state(dual.planner.GetMyContextFromRoot(context))
     goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
     return World(t=context.get_time(), hand_pos=m["hand_pos"].copy(),
                  object_pos=m["object_pos"].copy(), object_vel=m["object_vel"].copy(),
@@ -249,32 +296,35 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
              applied: list[Event] = (), interrupted: bool = False) -> Summary:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
-    s = dual.planner.mpc_state(dual.planner.GetMyContextFromRoot(context))
+    s = dual.planner.latest_state(dual.planner.GetMyContextFromRoot(context))
     goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
     pos = np.array([plant.EvalBodyPoseInWorld(pc, b).translation() for b in dual.station.objects])
     vel = _object_velocities(dual, context)
     speed = [float(np.linalg.norm(v)) for v in vel]
     resting = [bool(delivered(pos[j, :2], vel[j], goals[o.goal], REST_SPEED))
                for j, o in enumerate(scenario.task.objects)]
+    realtime = dual.planner.realtime
     return Summary(
+        mode="realtime" if realtime else "lockstep",
+        replan_latency_s=dual.planner.latency_s,
         goals={k: list(v) for k, v in goals.items()},
         objects=[{"name": o.name, "goal": o.goal} for o in scenario.task.objects],
         final_object_pos=np.round(pos, 6).tolist(),
         final_object_speed=[round(v, 6) for v in speed],
         delivered_time_s=[None if d is None else round(d, 3) for d in s.delivered_time],
-        replans=[{"t": round(r.t, 3), "wall_s": round(r.wall_s, 4), "status": r.status,
-                  "cost": r.cost, "horizon": r.horizon,
+        replans=[{"t": round(r.t, 3), "status": r.status, "cost": r.cost, "horizon": r.horizon,
                   "objects": [scenario.task.objects[j].name for j in r.objects],
                   "delivered": r.delivered, "note": r.note} for r in replans],
-        realtime_factor=round(t / wall, 4) if wall > 0 else float("inf"),
         sim_time_s=round(t, 3),
-        wall_time_s=round(wall, 3),
         all_delivered=all(resting),
         events=[e.__dict__ for e in [*scenario.events, *applied]],
         replans_over_budget=[round(r.t, 3) for r in replans
                              if r.status in ("searching", "over_budget")],
         interrupted=interrupted,
         min_arm_clearance_m=_min_arm_clearance(dual, context),
+        wall_clock={"wall_time_s": round(wall, 3),
+                    "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),
+                    "replan_wall_s": [round(r.wall_s, 4) for r in replans]},
     )
 
 

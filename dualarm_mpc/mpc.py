@@ -12,11 +12,14 @@ from the measured state (Algorithm 1, one step at a time):
 * within a step every replan takes the shortest feasible horizon from the measured state (so the
   plan cannot idle and the step arrives), MIP-started from the previous plan's grasps shifted by
   one step;
-* real time: a replan holds the caller for ``solver.replan_budget_s`` of wall time at most
-  (0.4 Δt by default). The search runs on a worker thread; past the budget the robot follows the
-  plan in force. While the robot waits at rest with no plan left (the first replan of a step),
-  the search goes on over the next periods and its plan starts when it ends ("searching"); while
-  the robot moves, the late search is stopped ("over_budget") and the next period plans afresh;
+* lockstep (the default): a replan runs to its end in the caller, and no solve stops by wall
+  time, so the replan is a function of its inputs alone, on any machine and under any load;
+* real time (``solver.realtime``): a replan holds the caller for ``solver.replan_budget_s`` of
+  wall time at most (0.4 Δt by default). The search runs on a worker thread; past the budget the
+  robot follows the plan in force. While the robot waits at rest with no plan left (the first
+  replan of a step), the search goes on over the next periods and its plan starts when it ends
+  ("searching"); while the robot moves, the late search is stopped ("over_budget") and the next
+  period plans afresh. What the robot does then depends on the machine;
 * a replan from exactly the state the plan in force reaches now, when that plan was proven
   optimal for the same step and goals, keeps it without a search ("kept"): by the principle of
   optimality its rest is the replan's optimum (:meth:`Replanner._on_proven_plan`);
@@ -24,8 +27,8 @@ from the measured state (Algorithm 1, one step at a time):
   returns its record (:class:`Replan`: wall time, status, cost). Nothing raises.
 
 The state (:class:`MpcState`) is a frozen value the caller keeps (the LeafSystem keeps it in its
-Context); the replan log is the caller's to keep. A search carried over to the next periods is a
-handle in that state (:class:`Search`); the worker thread is the :class:`Replanner`'s, made once.
+Context); the replan log is the caller's to keep. In real time, a search carried over to the next
+periods and the worker thread that runs it are the :class:`Replanner`'s, never in that state.
 """
 
 from __future__ import annotations
@@ -66,9 +69,12 @@ SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the pla
 SNAP_VELOCITY = 0.05  # m/s
 GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close to the grasp box
 KEPT = 1e-3  # m: a plan that moves an object less than this to its end leaves it where it is
-# The share of a control period a replan may hold the simulation for: the plant's own simulation
-# of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
+# Real time: the share of a control period a replan may hold the simulation for. The plant's own
+# simulation of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
 BUDGET_SHARE = 0.4
+# Lockstep: the time limit of every solve, long enough never to be reached (a wall-clock limit
+# would make the plan depend on the machine), finite for the backends that refuse infinity.
+NO_TIME_LIMIT_S = 1e7
 SEARCHING = "over budget: the robot waits at rest while the search goes on"
 ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
 _ON_GRID = 1e-6  # of a step: a replan at the plan's step k exactly
@@ -104,18 +110,12 @@ class Replan:
     note: str = ""
 
 
+@dataclass(frozen=True)
 class Search:
-    """A search carried over to the next periods: the job and its running future. A handle:
-    copies of the state share it (a running thread is not copied)."""
+    """Real time: a search carried over to the next periods, the job and its running future."""
 
-    def __init__(self, job: _Job, future: Future) -> None:
-        self.job, self.future = job, future
-
-    def __copy__(self) -> Search:
-        return self
-
-    def __deepcopy__(self, memo) -> Search:
-        return self
+    job: _Job
+    future: Future
 
 
 @dataclass(frozen=True)
@@ -129,7 +129,6 @@ class MpcState:
     # The last plan's step objects and their η, (T+1, 2, n): the next replan's MIP start.
     grasp_start: tuple[tuple[int, ...], np.ndarray] | None = None
     delivered_time: tuple[float | None, ...] = ()
-    search: Search | None = None  # a search carried over (the robot waits at rest meanwhile)
     # What the plan in force was proven optimal for (:func:`_step_key`), or None.
     proven: tuple | None = None
 
@@ -138,17 +137,23 @@ class Replanner:
     """The receding-horizon planner of the closed loop, one :meth:`step` per Δt.
 
     ``solve`` is one horizon's solve (``sequential.solve_horizon`` by default; a test may pass
-    one that fails). ``time_limit_s`` overrides the scenario's per-solve limit."""
+    one that fails). ``time_limit_s`` overrides the scenario's per-solve limit in real time;
+    lockstep has none."""
 
     def __init__(self, scenario: Scenario, time_limit_s: float | None = None,
                  solve: Solve | None = None) -> None:
         self._scenario = scenario
-        self._options = solver_options(scenario, time_limit_s)
+        self.realtime = scenario.solver.realtime
+        self._options = solver_options(scenario, time_limit_s if self.realtime
+                                       else NO_TIME_LIMIT_S)
         self._solve_horizon = solve_horizon if solve is None else solve
-        # Wall time a replan may hold the simulation: one control period at most.
+        # Real time: the wall time a replan may hold the simulation, the worker that searches
+        # meanwhile (made once), and the search carried over to the next periods, if any.
         budget = scenario.solver.replan_budget_s
         self._budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
-        self._worker = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
+        self._worker = (ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
+                        if self.realtime else None)
+        self.search: Search | None = None
         self._rules = rule_formulas(scenario)
         # The paper's rules look at most two steps ahead, which the model's state fixes (see
         # _on_proven_plan); a user rule may look anywhere, so with one every replan searches.
@@ -159,11 +164,11 @@ class Replanner:
         return MpcState(plan=empty_plan(sc.n_objects, np.array(sc.robot.hand_start)),
                         delivered_time=(None,) * sc.n_objects)
 
-    def close(self, state: MpcState | None = None) -> None:
-        """Stop the search ``state`` carries over, if any, and the worker (the run is over)."""
-        if state is not None:
-            _abandon(state)
-        self._worker.shutdown(wait=False, cancel_futures=True)
+    def close(self) -> None:
+        """Stop the search carried over, if any, and the worker (the run is over)."""
+        self._abandon()
+        if self._worker is not None:
+            self._worker.shutdown(wait=False, cancel_futures=True)
 
     def step(self, t: float, state: MpcState, measured: Measured,
              goals: Goals) -> tuple[MpcState, Replan]:
@@ -174,26 +179,25 @@ class Replanner:
             return self._replan(t, state, measured, goals, wall0)
         except Exception as err:  # a replan must never stop the simulation
             log.exception("replan at t=%.2f failed", t)
-            _abandon(state)
-            return _record(dataclasses.replace(state, search=None), t, wall0, "error",
-                           note=f"{type(err).__name__}: {err}")
+            self._abandon()
+            return _record(state, t, wall0, "error", note=f"{type(err).__name__}: {err}")
 
     # -- the replan ---------------------------------------------------------------------------
 
     def _replan(self, t: float, s: MpcState, measured: Measured, goals: Goals,
                 wall0: float) -> tuple[MpcState, Replan]:
-        """Wait at most the budget for a plan; past it, follow the plan in force and let the
-        search go on in the background while the robot waits at rest (carried over to the next
-        periods), or stop it while the robot moves (its start state is gone by then)."""
-        if s.search is not None:
-            job, future = s.search.job, s.search.future
+        """Lockstep: solve to the end. Real time: wait at most the budget for a plan; past it,
+        follow the plan in force and let the search go on in the background while the robot
+        waits at rest (carried over to the next periods), or stop it while the robot moves (its
+        start state is gone by then)."""
+        if self.search is not None:
+            job, future = self.search.job, self.search.future
             if job.scenario.task.goals != goals or not self._still(job, measured):
-                _abandon(s)  # the world moved on: plan afresh below
-                s = dataclasses.replace(s, search=None)
+                self._abandon()  # the world moved on: plan afresh below
             elif not _wait(future, self._budget_s):
                 return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
             else:
-                s = dataclasses.replace(s, search=None)
+                self.search = None
                 return self._adopt(s, job, future.result(), t, wall0)
         prepared = self._prepare(t, s, measured, goals, wall0)
         if not isinstance(prepared, _Job):
@@ -203,14 +207,22 @@ class Replanner:
             previous, grasp = s.grasp_start
             return _record(s, t, wall0, "kept", note=ON_PROVEN_PLAN,
                            grasp_start=(previous, grasp[1:]), **job.changes)
+        if not self.realtime:
+            return self._adopt(s, job, self._solve(job), t, wall0)
         future = self._worker.submit(self._solve, job)
         if _wait(future, self._budget_s):
             return self._adopt(s, job, future.result(), t, wall0)
         if job.idle:
-            return _record(dataclasses.replace(s, search=Search(job, future)), t, wall0,
-                           "searching", note=SEARCHING, **job.changes)
+            self.search = Search(job, future)
+            return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
         job.options.interrupt.set()
         return _record(s, t, wall0, "over_budget", note="kept the previous plan", **job.changes)
+
+    def _abandon(self) -> None:
+        """Stop the search carried over, if any."""
+        if self.search is not None:
+            self.search.job.options.interrupt.set()
+            self.search = None
 
     def _prepare(self, t: float, s: MpcState, measured: Measured, goals: Goals, wall0: float):
         """What the replan at ``t`` must solve (a :class:`_Job`), or the new state and record at
@@ -265,7 +277,8 @@ class Replanner:
 
     def _solve(self, job: _Job) -> StepResult | None:
         """The shortest feasible horizon (with cost (17) alone, a longer horizon lets the plan
-        idle first, and a receding horizon would then never arrive); runs on the worker."""
+        idle first, and a receding horizon would then never arrive); in real time, on the
+        worker."""
         wall0 = time.perf_counter()
         res = None
         sc, state, spec = job.scenario, job.state, job.spec
@@ -408,11 +421,6 @@ def _step_key(job: _Job) -> tuple:
     """What a plan is optimal for: the step's objects, m_o and the goals."""
     goals = tuple(sorted((name, tuple(box)) for name, box in job.scenario.task.goals.items()))
     return job.spec.objects, job.spec.m_o, goals
-
-
-def _abandon(s: MpcState) -> None:
-    if s.search is not None:
-        s.search.job.options.interrupt.set()
 
 
 def _lost(sc: Scenario, state: State) -> np.ndarray:

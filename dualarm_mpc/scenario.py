@@ -139,9 +139,16 @@ class SolverOptions:
     handover: str = "auto"
     # threads solving the skeleton search's independent programs at once
     workers: int = field(default=2, metadata=_in(1, 64))
-    # Closed loop: wall time a replan may hold the simulation (default 0.4 Δt); past it the
-    # robot follows the plan in force while the search goes on.
+    # Closed loop (docs/drake.md, "Lockstep and real time"). Lockstep by default: the
+    # simulation waits for every replan, whose plan takes over ``replan_latency_s`` of
+    # simulated time later (0 to Δt), and no search stops by wall time: the run is the same on
+    # any machine. ``realtime`` (``simulate --realtime``, the default with ``--meshcat``): a
+    # replan may hold the simulation for ``replan_budget_s`` of wall time (default 0.4 Δt),
+    # past which the robot follows the plan in force while the search goes on: what the robot
+    # does then depends on the machine's speed and load.
+    realtime: bool = False
     replan_budget_s: float | None = field(default=None, metadata=_in(0.0, 3600.0))
+    replan_latency_s: float = field(default=0.0, metadata=_in(0.0, 3600.0))
 
     def validate(self) -> None:
         if self.backend not in SOLVER_BACKENDS:
@@ -352,6 +359,10 @@ class Scenario:
         self.robot.validate()
         self.task.validate()
         self.solver.validate()
+        latency = self.solver.replan_latency_s
+        if latency > self.robot.dt:
+            raise ScenarioError(f"solver.replan_latency_s: at most robot.dt ({self.robot.dt} s), "
+                                f"got {latency}")
         for e, event in enumerate(self.events):
             event.validate(f"events[{e}]", self.task)
         self._check_reach()

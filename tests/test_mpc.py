@@ -25,9 +25,7 @@ def scenario(**overrides) -> Scenario:
                  robot=Robot(workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2, max_force=0.1),
                  task=Task(goals={k: list(v) for k, v in GOALS.items()},
                            objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1, m_o=1, n_o=1))
-    return apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03,
-                               "solver": {"time_limit_s": 10, "replan_budget_s": 60},
-                               **overrides})
+    return apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03, **overrides})
 
 
 def at_rest(sc: Scenario, object_pos=None) -> Measured:
@@ -44,12 +42,12 @@ def test_a_replan_from_rest_returns_a_plan_that_starts_now_and_its_record() -> N
     core = Replanner(sc)
     s0 = core.initial_state()
     s1, r = core.step(0.0, s0, at_rest(sc), sc.task.goals)
-    core.close(s1)
+    core.close()
     assert r.status in ("optimal", "feasible") and r.t == 0.0 and r.wall_s >= 0
     assert r.objects == (0,) and r.delivered == 0 and r.horizon is not None
     assert s1.plan.t0 == 0.0 and s1.plan.trajectory.steps == r.horizon
     assert s1.horizon_end == r.horizon * sc.robot.dt and s1.step_objects == (0,)
-    assert s1.search is None and s0.step_objects == ()  # the input state is not changed
+    assert core.search is None and s0.step_objects == ()  # the input state is not changed
     # the plan ends with the object in its goal
     end = s1.plan.trajectory.object_pos[-1, 0]
     assert in_goal(end, GOALS["red"])
@@ -61,7 +59,7 @@ def test_an_object_resting_in_its_goal_is_delivered_and_the_robot_holds_still() 
     slow = at_rest(sc, [[0.4, 0.8]])
     slow = dataclasses.replace(slow, object_vel=np.array([[0.5 * REST_SPEED, 0.0]]))
     s, r = core.step(3.0, core.initial_state(), slow, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status == "done" and r.delivered == 1 and s.delivered_time == (3.0,)
     assert s.plan.t0 == 3.0 and not s.plan.trajectory.grasp.any()
 
@@ -75,7 +73,7 @@ def test_an_object_creeping_across_its_goals_edge_is_not_delivered() -> None:
     creeping = at_rest(sc, [[0.4, top - 0.002]])
     creeping = dataclasses.replace(creeping, object_vel=np.array([[0.0, 0.4 * REST_SPEED]]))
     s, r = core.step(3.0, core.initial_state(), creeping, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status in ("optimal", "feasible") and r.delivered == 0
     assert s.delivered_time == (None,) and s.step_objects == (0,)
 
@@ -91,11 +89,11 @@ def test_an_object_sliding_slowly_into_a_goal_out_of_reach_is_arriving_not_lost(
     sliding = at_rest(sc, [[far[0] - 0.5 * sc.robot.dt * speed, 0.8]])
     sliding = dataclasses.replace(sliding, object_vel=np.array([[speed, 0.0]]))
     s, r = core.step(3.0, core.initial_state(), sliding, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status == "done", r.note
     # At rest where it is, it is outside its goal and out of reach: that is stuck.
     s, r = core.step(3.0, core.initial_state(), at_rest(sc, sliding.object_pos), sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status == "stuck"
 
 
@@ -135,7 +133,7 @@ def test_an_object_outside_the_step_sliding_into_its_goal_is_not_snapped_back() 
     sliding = dataclasses.replace(at_rest(sc, now), object_vel=np.array([[0.0, 0.0], [speed, 0]]))
     core = Replanner(sc)
     s, r = core.step(1.0, s, sliding, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status == "done", r.note
 
 
@@ -151,7 +149,7 @@ def test_a_thrown_object_at_its_plans_end_point_is_delivered_as_the_drag_ends_it
                                   object_vel=np.array([[0.0, speed]]))
     core = Replanner(sc)
     s, r = core.step(1.0, s, sliding, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status == "done" and s.delivered_time == (1.0,), r.note
 
 
@@ -161,7 +159,7 @@ def test_the_goals_come_from_the_caller() -> None:
     core = Replanner(sc)
     moved = {**sc.task.goals, "red": [0.0, 0.2, 0.0, 0.2]}
     s, r = core.step(0.0, core.initial_state(), at_rest(sc), moved)
-    core.close(s)
+    core.close()
     assert r.status == "done" and s.delivered_time == (0.0,)
 
 
@@ -173,29 +171,30 @@ def test_a_failing_solve_is_recorded_and_keeps_the_plan_in_force() -> None:
     core = Replanner(sc, solve=failing)
     s0 = core.initial_state()
     s1, r = core.step(0.0, s0, at_rest(sc), sc.task.goals)
-    core.close(s1)
+    core.close()
     assert r.status == "error" and r.note == "RuntimeError: injected"
     assert s1.plan is s0.plan
 
 
 def test_a_search_past_the_budget_goes_on_at_rest_and_its_plan_applies_when_it_ends() -> None:
-    """The solve is held until released (no clock involved): the first replan records
-    "searching" and carries the search in its state; the next one adopts its plan."""
+    """Real time: the solve is held until released (no clock involved): the first replan
+    records "searching" and carries the search over (the Replanner's, not in the state); the
+    next one adopts its plan."""
     release = threading.Event()
 
     def held(*args, **kwargs):
         release.wait()
         return solve_horizon(*args, **kwargs)
 
-    sc = scenario(solver={"time_limit_s": 10, "replan_budget_s": 0.001})
+    sc = scenario(solver={"realtime": True, "replan_budget_s": 0.001})
     core = Replanner(sc, solve=held)
     s1, r1 = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
-    assert r1.status == "searching" and r1.note == SEARCHING and s1.search is not None
+    assert r1.status == "searching" and r1.note == SEARCHING and core.search is not None
     release.set()
-    s1.search.future.result()  # the search has ended: the next replan adopts it
+    core.search.future.result()  # the search has ended: the next replan adopts it
     s2, r2 = core.step(1.0, s1, at_rest(sc), sc.task.goals)
-    core.close(s2)
-    assert r2.status in ("optimal", "feasible") and s2.search is None
+    core.close()
+    assert r2.status in ("optimal", "feasible") and core.search is None
     assert s2.plan.t0 == 1.0 and s2.step_objects == (0,)
 
 
@@ -208,16 +207,16 @@ def test_a_search_carried_over_is_abandoned_when_a_goal_moves() -> None:
         release.wait()
         return solve_horizon(*args, **kwargs)
 
-    sc = scenario(solver={"time_limit_s": 10, "replan_budget_s": 0.001})
+    sc = scenario(solver={"realtime": True, "replan_budget_s": 0.001})
     core = Replanner(sc, solve=held)
     s1, _ = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
-    first = s1.search
+    first = core.search
     moved = {**sc.task.goals, "red": [0.2, 0.55, 0.6, 0.9]}
     s2, r2 = core.step(1.0, s1, at_rest(sc), moved)
     assert first.job.options.interrupt.is_set()  # the old search was told to stop
-    assert r2.status == "searching" and s2.search is not first
+    assert r2.status == "searching" and core.search is not first
     release.set()
-    core.close(s2)
+    core.close()
     assert isinstance(s2, MpcState)
 
 
@@ -245,7 +244,7 @@ def test_an_object_held_still_in_its_goal_by_the_plan_in_force_is_delivered() ->
                         object_vel=np.zeros((1, 2)), grasp=grasp.astype(float))
     core = Replanner(sc)
     s, r = core.step(1.0, s, measured, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status == "done" and s.delivered_time == (1.0,)
     assert not s.plan.trajectory.grasp.any(), "the hand lets go"
 
@@ -260,7 +259,7 @@ def test_hands_measured_a_hair_inside_the_hand_gap_are_planned_from_eq_16() -> N
                                                                 [-gap / 2 + 4e-6, 0.0]]))
     core = Replanner(sc)
     s, r = core.step(0.0, core.initial_state(), close, sc.task.goals)
-    core.close(s)
+    core.close()
     assert r.status in ("optimal", "feasible")
     start = s.plan.trajectory.hand_pos[0]
     assert start[0, 0] - start[1, 0] >= gap - 1e-9
@@ -297,7 +296,7 @@ def test_a_replan_on_the_proven_plan_keeps_it_without_a_search(rule: int) -> Non
     dt = sc.robot.dt
     s2, r2 = core.step(dt, s1, on_plan(s1, 1), sc.task.goals)
     s3, r3 = core.step(2 * dt, s2, on_plan(s1, 2), sc.task.goals)
-    core.close(s3)
+    core.close()
     assert (r2.status, r3.status) == ("kept", "kept") and len(calls) == searched
     assert s3.plan is s1.plan and s3.proven == s1.proven and s3.horizon_end == s1.horizon_end
     # The next search's MIP start stays aligned: two periods on, two rows fewer.
@@ -320,7 +319,7 @@ def test_a_replan_searches_unless_the_plan_in_force_answers_it(change: str) -> N
         s1 = dataclasses.replace(s1, proven=None)
     searched = len(calls)
     s2, r2 = core.step(sc.robot.dt, s1, measured, goals)
-    core.close(s2)
+    core.close()
     assert r2.status != "kept" and len(calls) > searched
 
 

@@ -248,7 +248,7 @@ def test_an_object_knocked_out_of_the_hand_stays_where_knocked_and_is_delivered(
                  task=Task(goals={"red": [0.225, 0.575, 0.65, 0.95]},
                            objects=[ObjectSpec("a", [0.1, 0.1], "red")], rule=1, m_o=1, n_o=1))
     sc = apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03,
-                             "solver": {"time_limit_s": 10, "replan_budget_s": 60}})
+                             "solver": {"time_limit_s": 10}})
     knock = KnockWhenHeld([0.35, 0.2])
     summary = simulate(sc, duration=30.0, disturb=knock)
     (t_knock, held, _), (_, held_after, pos_after) = knock.seen

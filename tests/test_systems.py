@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -539,3 +541,43 @@ def test_gripper_does_not_grab_an_object_out_of_reach():
     x = rig.advance(1.0)
     np.testing.assert_array_equal(x["grasp"], 0.0)
     np.testing.assert_allclose(x["object_pos"][0], [0.1, 0.1], atol=1e-4)
+
+
+# --- the closed loop, short (the one in make test-fast) ----------------------------------------
+
+
+@pytest.mark.parametrize("latency", [1.0, 0.5])
+def test_the_closed_loop_in_lockstep_applies_each_plan_one_latency_after_its_replan(latency):
+    """One object on the robot for 1.6 s. The replan at t = 0 solves from rest; its plan takes
+    over ``solver.replan_latency_s`` later (Δt = 1 s, or less), not before: until then the plan
+    in force is the initial one (no step) and the hands hold still; from then on they follow
+    the new plan. The summary JSON carries no wall-clock figure."""
+    from dualarm_mpc.closed_loop import simulate
+    from dualarm_mpc.scenario import Robot, apply_overrides
+
+    s = Scenario(name="short", robot=Robot(workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2,
+                                           max_force=0.1),
+                 task=Task(goals={"red": [0.225, 0.575, 0.65, 0.95]},
+                           objects=[ObjectSpec("a", [0.1, 0.1], "red")]))
+    sc = apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03,
+                             "solver": {"replan_latency_s": latency}})
+    seen = []  # (t, steps of the plan in force, hand speed)
+
+    def observe(dual, root) -> None:
+        planner, estimator = dual.planner, dual.stack.estimator
+        plan = planner.mpc_state(planner.GetMyContextFromRoot(root)).plan
+        x = estimator.get_measured_state_output_port().Eval(estimator.GetMyContextFromRoot(root))
+        speed = np.abs(split_measured_state(x, 1)["hand_vel"]).max()
+        seen.append((root.get_time(), plan.trajectory.steps, speed))
+
+    summary = simulate(sc, duration=1.6, observe=observe)
+    assert summary.mode == "lockstep" and summary.replan_latency_s == latency
+    first = summary.replans[0]
+    assert first["t"] == 0.0 and first["status"] in ("optimal", "feasible")
+    before = [(steps, v) for t, steps, v in seen if t < latency - 1e-9]
+    after = [(steps, v) for t, steps, v in seen if t >= latency + 0.3]
+    assert before and after
+    assert all(steps == 0 for steps, _ in before) and max(v for _, v in before) < 1e-3
+    assert all(steps == first["horizon"] for steps, _ in after)
+    assert max(v for _, v in after) > 0.02  # moving towards the object
+    assert "wall" not in json.dumps(summary.to_json())

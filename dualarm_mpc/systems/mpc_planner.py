@@ -2,9 +2,12 @@
 
 A thin LeafSystem: a periodic unrestricted update (every Δt from t = 0) reads the measured state
 and the goals from its input ports, calls :meth:`dualarm_mpc.mpc.Replanner.step`, and keeps the
-new :class:`~dualarm_mpc.mpc.MpcState` and the replan's record in its abstract state. The output
-ports only read that state: the plan in force, and the last replan (the closed loop records every
-one of them; the log is not kept in the state).
+new :class:`~dualarm_mpc.mpc.MpcState` and the replan's record in its abstract state. The new
+state takes over ``solver.replan_latency_s`` of simulated time after the replan (0 by default:
+at once; at most Δt), held until then as the pending state; the plan in force meanwhile is the
+previous one. The output ports only read that state: the plan in
+force, and the last replan (the closed loop records every one of them; the log is not kept in the
+state). The state holds values only: a search that runs on (real time) is the Replanner's.
 """
 
 from __future__ import annotations
@@ -39,6 +42,8 @@ class MpcPlanner(LeafSystem):
     ``solve`` replaces one horizon's solve (``sequential.solve_horizon``), e.g. to inject failures.
     """
 
+    _DUE = 1e-9  # s: a pending state due at t takes over at the update at t (float sums)
+
     def __init__(self, scenario: Scenario, time_limit_s: float | None = None,
                  solve: Solve | None = None):
         super().__init__()
@@ -47,6 +52,10 @@ class MpcPlanner(LeafSystem):
         initial = self._replanner.initial_state()
         self._state = self.DeclareAbstractState(AbstractValue.Make(initial))
         self._last = self.DeclareAbstractState(AbstractValue.Make(None))
+        # (time it takes over, MpcState) of the last replan, until it does; else None
+        self._pending = self.DeclareAbstractState(AbstractValue.Make(None))
+        dt, self.latency_s = scenario.robot.dt, scenario.solver.replan_latency_s
+        self.realtime = self._replanner.realtime
         self._measured = self.DeclareVectorInputPort("measured_state", 8 + 6 * self._n)
         goals = {k: list(v) for k, v in scenario.task.goals.items()}
         self._goals = self.DeclareAbstractInputPort("goals", AbstractValue.Make(goals))
@@ -56,11 +65,13 @@ class MpcPlanner(LeafSystem):
         self._replan = self.DeclareAbstractOutputPort(
             "replan", lambda: AbstractValue.Make(None), self._calc_replan,
             prerequisites_of_calc={self.abstract_state_ticket(self._last)})
-        self.DeclarePeriodicUnrestrictedUpdateEvent(scenario.robot.dt, 0.0, self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
+        if 0 < self.latency_s < dt:  # a latency of Δt takes over at the next replan's update
+            self.DeclarePeriodicUnrestrictedUpdateEvent(dt, self.latency_s, self._take_over)
 
-    def close(self, context=None) -> None:
-        """Stop a search still running in the background (the simulation is over)."""
-        self._replanner.close(None if context is None else self.mpc_state(context))
+    def close(self) -> None:
+        """Stop a search still running in the background (real time; the simulation is over)."""
+        self._replanner.close()
 
     def get_measured_state_input_port(self):
         return self._measured
@@ -75,7 +86,13 @@ class MpcPlanner(LeafSystem):
         return self._replan
 
     def mpc_state(self, context) -> MpcState:
+        """The state in force (its plan is the one the robot follows)."""
         return context.get_abstract_state(self._state).get_value()
+
+    def latest_state(self, context) -> MpcState:
+        """The last replan's state, pending or in force (what the planner last counted)."""
+        pending = context.get_abstract_state(self._pending).get_value()
+        return self.mpc_state(context) if pending is None else pending[1]
 
     def _calc_plan(self, context, output) -> None:
         output.set_value(self.mpc_state(context).plan)
@@ -83,10 +100,27 @@ class MpcPlanner(LeafSystem):
     def _calc_replan(self, context, output) -> None:
         output.set_value(context.get_abstract_state(self._last).get_value())
 
+    def _in_force(self, context) -> tuple[MpcState, tuple | None]:
+        """The state in force at the context's time and what is still pending."""
+        pending = context.get_abstract_state(self._pending).get_value()
+        if pending is not None and pending[0] <= context.get_time() + self._DUE:
+            return pending[1], None
+        return self.mpc_state(context), pending
+
+    def _take_over(self, context, state) -> None:
+        current, pending = self._in_force(context)
+        state.get_mutable_abstract_state(self._state).set_value(current)
+        state.get_mutable_abstract_state(self._pending).set_value(pending)
+
     def _update(self, context, state) -> None:
+        """The replan at t, from the state in force at t; its state takes over at t + latency."""
+        t = context.get_time()
+        current, _ = self._in_force(context)
         m = split_measured_state(self._measured.Eval(context), self._n)
         measured = Measured(**{k: v.copy() for k, v in m.items()})
-        new, replan = self._replanner.step(context.get_time(), self.mpc_state(context), measured,
-                                           self._goals.Eval(context))
-        state.get_mutable_abstract_state(self._state).set_value(new)
+        new, replan = self._replanner.step(t, current, measured, self._goals.Eval(context))
+        pending = None if self.latency_s == 0 else (t + self.latency_s, new)
+        state.get_mutable_abstract_state(self._state).set_value(new if pending is None
+                                                                else current)
+        state.get_mutable_abstract_state(self._pending).set_value(pending)
         state.get_mutable_abstract_state(self._last).set_value(replan)
