@@ -25,6 +25,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from dualarm_mpc import outputs
@@ -201,8 +202,15 @@ def _check(scenario, joint: bool, file=None):
     is kept if a signal stops it."""
     from dualarm_mpc.consistency import check
 
-    report = _interruptible(lambda: check(scenario, joint=joint),
-                            tick=_heartbeat("checking the task against the rules"))
+    done = [0, 0]  # objects checked, of how many
+
+    def progress(n: int, total: int) -> None:
+        done[:] = max(done[0], n), total
+
+    report = _interruptible(
+        lambda: check(scenario, joint=joint, progress=progress),
+        tick=_heartbeat(lambda: "checking the task against the rules"
+                        + (f" ({done[0]} of {done[1]} objects checked)" if done[1] else "")))
     for conflict in report.conflicts:
         print(f"conflict: {conflict}", file=file or sys.stdout)
     for what in report.undecided:
@@ -267,16 +275,17 @@ def _interruptible(work, stop=None, tick=lambda: None):
     return out["value"]
 
 
-def _heartbeat(what: str):
-    """A ``tick`` that says ``what`` is still going on every ``HEARTBEAT_S``: no phase is
-    silent for long."""
+def _heartbeat(what: str | Callable[[], str]):
+    """A ``tick`` that says ``what`` (or what ``what()`` says now) is still going on every
+    ``HEARTBEAT_S``: no phase is silent for long."""
     start = said = time.perf_counter()
 
     def tick() -> None:
         nonlocal said
         now = time.perf_counter()
         if now - said >= HEARTBEAT_S:
-            print(f"{what}: {now - start:.0f} s so far", flush=True)
+            print(f"{what() if callable(what) else what}: {now - start:.0f} s so far",
+                  flush=True)
             said = now
 
     return tick

@@ -50,6 +50,8 @@ beyond the hands' reach) and what each rule of the minimal set forbids.
 from __future__ import annotations
 
 import dataclasses
+import itertools
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -98,10 +100,12 @@ class Report:
 
 
 def check(scenario: Scenario, state: State | None = None, joint: bool = True,
-          options: SolveOptions | None = None) -> Report:
+          options: SolveOptions | None = None,
+          progress: Callable[[int, int], None] | None = None) -> Report:
     """Check every object not yet resting in its goal on its own (in parallel, on
     ``solver.workers`` threads), then — if they all pass and ``joint`` — the first sequential
-    step as a whole."""
+    step as a whole. ``progress(done, total)`` is called as each object's check ends (from the
+    worker threads), so that a long check can say how far it is."""
     state = State.initial(scenario) if state is None else state
     options = options or solver_options(scenario)
     T = scenario.solver.max_horizon
@@ -111,9 +115,16 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     # Objects the first step delivers from this state; any other may be delivered by a later
     # step, whose hands start elsewhere.
     now = set(first) if min(scenario.task.m_o, len(first)) == len(first) else set()
+    done = itertools.count(1)
+
+    def one(j: int) -> Conflict | Status:
+        verdict = _check_object(scenario, state, j, named, options, anywhere=j not in now)
+        if progress is not None:
+            progress(next(done), len(todo))  # next() on a count is atomic under the GIL
+        return verdict
+
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        verdicts = list(pool.map(lambda j: _check_object(scenario, state, j, named, options,
-                                                         anywhere=j not in now), todo))
+        verdicts = list(pool.map(one, todo))
     conflicts = tuple(v for v in verdicts if isinstance(v, Conflict))
     undecided = tuple(scenario.task.objects[j].name for j, v in zip(todo, verdicts, strict=True)
                       if v is Status.TIME_LIMIT)

@@ -76,6 +76,13 @@ def test_a_consistent_task_passes_the_joint_check(two) -> None:
     assert report.consistent and not report.undecided
 
 
+def test_the_check_says_how_many_objects_it_has_checked(two) -> None:
+    """The command line's progress line of a long check counts the objects done."""
+    said: list[tuple[int, int]] = []
+    check(two(), joint=False, progress=lambda done, total: said.append((done, total)))
+    assert sorted(said) == [(1, 2), (2, 2)]
+
+
 def test_a_rule_not_monotone_in_the_horizon_is_decided_at_every_horizon(two) -> None:
     """``G(eta[1,2] -> WX !eta[1,2])`` (hold object 2 one step at most) does not survive
     idling: the largest horizon alone would not decide it. Object 2 still has a plan (a
