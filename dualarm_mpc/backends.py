@@ -87,6 +87,8 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
     h.setOptionValue("time_limit", float(options.time_limit_s))
     h.setOptionValue("mip_rel_gap", float(options.mip_rel_gap))
     h.setOptionValue("threads", int(options.threads))
+    if options.node_limit is not None:
+        h.setOptionValue("mip_max_nodes", int(options.node_limit))
     if options.small_trees:
         for name in ("rins", "rens", "feasibility_jump", "root_reduced_cost"):
             h.setOptionValue(f"mip_heuristic_run_{name}", False)

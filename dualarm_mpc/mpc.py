@@ -13,7 +13,9 @@ from the measured state (Algorithm 1, one step at a time):
   plan cannot idle and the step arrives), MIP-started from the previous plan's grasps shifted by
   one step;
 * lockstep (the default): a replan runs to its end in the caller, and no solve stops by wall
-  time, so the replan is a function of its inputs alone, on any machine and under any load;
+  time (a program stops at ``solver.replan_node_limit`` branch-and-bound nodes, the replan's
+  search, over all its horizons, at ``solver.replan_program_limit`` programs instead), so the
+  replan is a function of its inputs alone, on any machine and under any load;
 * real time (``solver.realtime``): a replan holds the caller for ``solver.replan_budget_s`` of
   wall time at most (0.4 Δt by default). The search runs on a worker thread; past the budget the
   robot follows the plan in force. While the robot waits at rest with no plan left (the first
@@ -58,7 +60,7 @@ from dualarm_mpc.mld import (
 from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.sequential import embed_step, predict_horizon, select_objects, solve_horizon
-from dualarm_mpc.solver import Interrupt, SolveOptions, Status
+from dualarm_mpc.solver import Interrupt, SolveOptions, Status, WorkLimit
 from dualarm_mpc.spec import RULE_TEXT, Specification, rule_formulas, specification
 from dualarm_mpc.verify import atom_trace
 
@@ -73,7 +75,8 @@ KEPT = 1e-3  # m: a plan that moves an object less than this to its end leaves i
 # simulation of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
 BUDGET_SHARE = 0.4
 # Lockstep: the time limit of every solve, long enough never to be reached (a wall-clock limit
-# would make the plan depend on the machine), finite for the backends that refuse infinity.
+# would make the plan depend on the machine), finite for the backends that refuse infinity; what
+# bounds a solve instead is ``solver.replan_node_limit``, a count of branch-and-bound nodes.
 NO_TIME_LIMIT_S = 1e7
 SEARCHING = "over budget: the robot waits at rest while the search goes on"
 ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
@@ -146,6 +149,9 @@ class Replanner:
         self.realtime = scenario.solver.realtime
         self._options = solver_options(scenario, time_limit_s if self.realtime
                                        else NO_TIME_LIMIT_S)
+        if not self.realtime:
+            self._options = dataclasses.replace(self._options,
+                                                node_limit=scenario.solver.replan_node_limit)
         self._solve_horizon = solve_horizon if solve is None else solve
         # Real time: the wall time a replan may hold the simulation, the worker that searches
         # meanwhile (made once), and the search carried over to the next periods, if any.
@@ -272,7 +278,8 @@ class Replanner:
                                         object_vel=np.zeros_like(state.object_vel))
         changes = dict(delivered_time=delivered_time, step_objects=tuple(objects),
                        step_target=target)
-        options = dataclasses.replace(self._options, interrupt=Interrupt())
+        work = None if self.realtime else WorkLimit(sc.solver.replan_program_limit)
+        options = dataclasses.replace(self._options, interrupt=Interrupt(), work=work)
         return _Job(sc, state, spec, start, options, idle, changes)
 
     def _solve(self, job: _Job) -> StepResult | None:
@@ -286,6 +293,9 @@ class Replanner:
             res = self._solve_horizon(sc, state, spec, T, job.options, start=job.start)
             if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
                 break
+            if job.options.work is not None and job.options.work.spent():
+                # lockstep: out of work before a horizon had a plan, undecided (as a time limit)
+                return dataclasses.replace(res, status=Status.TIME_LIMIT)
             if time.perf_counter() - wall0 > job.options.time_limit_s:
                 break
         return res

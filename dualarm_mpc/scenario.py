@@ -149,6 +149,11 @@ class SolverOptions:
     realtime: bool = False
     replan_budget_s: float | None = field(default=None, metadata=_in(0.0, 3600.0))
     replan_latency_s: float = field(default=0.0, metadata=_in(0.0, 3600.0))
+    # Lockstep: branch-and-bound nodes a replan's solve of one program may take (HiGHS), where
+    # real time has a wall-time limit; reached, the program is undecided, as at a time limit.
+    replan_node_limit: int = field(default=2000, metadata=_in(1, 10**9))
+    # and programs a replan's skeleton search may solve, over all the horizons it tries
+    replan_program_limit: int = field(default=300, metadata=_in(1, 10**9))
 
     def validate(self) -> None:
         if self.backend not in SOLVER_BACKENDS:

@@ -135,9 +135,12 @@ class StepSearch:
     # -- the subprograms ----------------------------------------------------------------------
 
     def _stopped(self) -> bool:
-        """Out of time, or asked to stop (``options.interrupt``)."""
-        stop = self.options.interrupt
-        return time.perf_counter() > self._deadline or (stop is not None and stop.is_set())
+        """Out of time or work (``options.work``: read here only, where no worker runs, so
+        the search stops at the same place on any machine), or asked to stop
+        (``options.interrupt``)."""
+        stop, work = self.options.interrupt, self.options.work
+        return (time.perf_counter() > self._deadline or (stop is not None and stop.is_set())
+                or (work is not None and work.spent()))
 
     def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
                start: StepResult | None = None, floor=None, orders=(),
@@ -151,6 +154,8 @@ class StepSearch:
             options = replace(options, mip_rel_gap=1.0)
         res = self._program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
                                   grasp=grasp, floor=floor, orders=orders)
+        if self.options.work is not None:
+            self.options.work.spend()
         if res.status is Status.INFEASIBLE and np.isfinite(cutoff):
             return replace(res, bound=cutoff)  # nothing cheaper than the cutoff: its bound
         return res

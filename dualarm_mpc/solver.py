@@ -81,12 +81,35 @@ class SolveOptions:
     # "Solver settings"). The monolithic reference keeps HiGHS's defaults; other backends
     # ignore the field.
     small_trees: bool = False
+    # A deterministic work limit: branch-and-bound nodes per solve (HiGHS's mip_max_nodes; other
+    # backends ignore it). Reached, the solve ends as at its time limit. The closed loop in
+    # lockstep sets it in place of a wall-time limit, which would depend on the machine.
+    node_limit: int | None = None
+    # The skeleton search's deterministic work limit, shared by the searches under these
+    # options (a replan's horizons): past it a search stops as at its time limit.
+    work: WorkLimit | None = field(default=None, compare=False)
     # Only solutions below this objective are wanted: a program with none ends "infeasible",
     # which here means "nothing below the cutoff". Every backend prunes by it: HiGHS's
     # objective_bound, SCIP's objective limit, Gurobi's Cutoff, CPLEX's upper cutoff.
     cutoff: float = np.inf
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)
+
+
+class WorkLimit:
+    """A count of the programs solved under it, from any thread, and the most it allows. Read
+    only where no solve under it runs, it stops a search at the same place on any machine."""
+
+    def __init__(self, programs: int) -> None:
+        self.limit, self.programs = programs, 0
+        self._lock = threading.Lock()
+
+    def spend(self) -> None:
+        with self._lock:
+            self.programs += 1
+
+    def spent(self) -> bool:
+        return self.programs >= self.limit
 
 
 class Interrupt:

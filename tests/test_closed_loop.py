@@ -79,8 +79,9 @@ VC = {
 }
 # Lockstep (the default): what the planner decides does not depend on how fast the machine is.
 CLOSED_LOOP = {"delivery": "rest", "goal_margin": 0.03}
-# m: the arms' links keep at least this far apart all through a run. Measured in lockstep: 6.36 cm
-# on the small scenes; on the paper's scenes (below) PAPER_ARM_CLEARANCE.
+# m: the arms' links keep at least this far apart all through a run. Measured in lockstep (the
+# same on every machine): 6.36 cm on the two-object scene; on the paper's scenes 5.97 cm (§V-C,
+# make demo) and 6.57 cm (§V-D seed 0, rule 1). The docs state 5 cm.
 MIN_ARM_CLEARANCE = 0.05
 PAPER_ARM_CLEARANCE = 0.05
 
