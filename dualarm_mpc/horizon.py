@@ -54,6 +54,12 @@ class StepResult:
     variables: program.HorizonVariables | None = None
     message: str = ""
     bound: float = 0.0  # the solver's proven lower bound on the cost
+    # Of a step's plan (sequential.plan_step): every horizon below this one, from predictT, was
+    # proven to have no plan (under the witness policy: none cheaper than the witness); and the
+    # witness's cost and horizon, where there was one.
+    minimal: bool = False
+    witness_cost: float | None = None
+    witness_horizon: int | None = None
 
 
 def solver_options(scenario: Scenario, time_limit_s: float | None = None) -> SolveOptions:

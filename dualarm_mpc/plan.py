@@ -85,6 +85,12 @@ class Segment:
     binaries: int = 0
     gap: float = 0.0
     cpu_time_s: float = 0.0  # CPU time of the step summed over every worker thread
+    # Every shorter horizon from predictT was proven to have no plan (the witness policy: none
+    # cheaper than the witness); with status "optimal", the step's plan is then proven optimal
+    # at a proven-minimal horizon.
+    horizon_proven_minimal: bool = False
+    witness_cost: float | None = None  # the no-throw witness's (sequential.witness), if any
+    witness_horizon: int | None = None
 
     def to_json(self) -> dict:
         return {
@@ -97,13 +103,23 @@ class Segment:
             "binaries": self.binaries,
             "gap": self.gap,
             "cpu_time_s": round(self.cpu_time_s, 4),
+            "horizon_proven_minimal": self.horizon_proven_minimal,
+            "proven_optimal": self.proven_optimal,
+            "witness_cost": self.witness_cost,
+            "witness_horizon": self.witness_horizon,
         }
+
+    @property
+    def proven_optimal(self) -> bool:
+        """The plan is proven optimal at its horizon."""
+        return self.status == "optimal"
 
     @staticmethod
     def from_json(data: dict) -> Segment:
         """:meth:`to_json` read back; a gap without a bound is written null (JSON has no
         Infinity: ``outputs.json_text``)."""
         gap = data.get("gap", 0.0)
+        data = {k: v for k, v in data.items() if k != "proven_optimal"}  # derived
         return Segment(**{**data, "gap": math.inf if gap is None else gap})
 
 

@@ -137,6 +137,10 @@ class SolverOptions:
     # Skeleton nodes where both hands may hold one object: "auto" only for objects that neither
     # hand can deliver alone, "always" (exact against the monolithic MILP), "never".
     handover: str = "auto"
+    # How a step's horizon is chosen (sequential.plan_step): "witness", the no-throw witness
+    # first and the horizons below it within one budget per step (skeleton search); "exact",
+    # Algorithm 1 as the paper, every horizon from predictT up to the first plan.
+    horizons: str = "witness"
     # threads solving the skeleton search's independent programs at once
     workers: int = field(default=2, metadata=_in(1, 64))
     # Closed loop (docs/drake.md, "Lockstep and real time"). Lockstep by default: the
@@ -162,6 +166,9 @@ class SolverOptions:
         if self.search not in ("skeleton", "monolithic"):
             raise ScenarioError(f"solver.search: expected 'skeleton' or 'monolithic', got "
                                 f"{self.search!r}")
+        if self.horizons not in ("witness", "exact"):
+            raise ScenarioError(f"solver.horizons: expected 'witness' or 'exact', got "
+                                f"{self.horizons!r}")
         if self.handover not in ("auto", "always", "never"):
             raise ScenarioError(f"solver.handover: expected 'auto', 'always' or 'never', got "
                                 f"{self.handover!r}")

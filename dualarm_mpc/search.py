@@ -52,7 +52,8 @@ import numpy as np
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import HorizonProgram, StepResult, solver_options
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import N_HANDS, Rect, State, in_goal, replay, violations
+from dualarm_mpc.mld import N_HANDS, Model, Rect, State, in_goal, replay, violations
+from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.route import Order, orders, route_steps
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import SolveOptions, Status
@@ -112,16 +113,21 @@ class StepSearch:
     # The relaxations with a plan at the horizon below (a step tries its horizons one by one):
     # each plan, idled one more step, stands for this horizon's feasibility probe.
     below: dict[tuple, StepResult] = field(default_factory=dict)
+    # Only plans cheaper than ``cutoff`` are sought (none found: "infeasible", no plan cheaper);
+    # ``incumbent``, a plan of this horizon, is the first best. Either way the feasibility pass
+    # is skipped and the relay nodes are searched at once (see :func:`search_step`).
+    cutoff: float = np.inf
+    incumbent: StepResult | None = None
 
     def __post_init__(self) -> None:
         self._relax: dict[tuple, StepResult] = {}
         self._exact: set = set()  # keys of the relaxations solved to optimality
-        self._witness: StepResult | None = None  # a plan the feasibility pass found
+        self._witness = self.incumbent  # a plan the feasibility pass found, or the incumbent
         self._slice = np.inf  # the time a program may take (the feasibility pass's rounds)
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
         # ``auto``: relays are searched once the nodes without them have no plan (see
         # handed_over_objects); the nodes the feasibility pass proved infeasible meanwhile.
-        self._relays = False
+        self._relays = self.bounded
         self._ruled: set[Node] = set()
         self._deadline = time.perf_counter() + self.options.time_limit_s
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
@@ -131,6 +137,11 @@ class StepSearch:
         local_grasp = self.state.grasp[:, list(self.spec.objects)]
         self._held = [j for n, j in enumerate(self.spec.objects) if local_grasp[:, n].any()]
         self._no_throw = frozenset(self._local[j] for j in self.spec.released_only_in_goal())
+
+    @property
+    def bounded(self) -> bool:
+        """Whether a cutoff or an incumbent stands for the feasibility pass."""
+        return self.incumbent is not None or bool(np.isfinite(self.cutoff))
 
     # -- the subprograms ----------------------------------------------------------------------
 
@@ -404,38 +415,24 @@ class StepSearch:
         return not (node.handed_over or node.free or node in self._composed
                     or self.missing(node)) and self.bound(node) < below
 
-    def improve(self, nodes: Iterable[Node], best: StepResult | None) -> StepResult | None:
-        """``best``, or the cheapest composed plan of ``nodes`` if better: a few hundredths
-        of a second each, where a node's joint program takes seconds and runs faster against
-        a lower incumbent (its cutoff)."""
-        below = np.inf if best is None else best.cost * (1 - self.options.mip_rel_gap)
-        todo = [n for n in nodes if self._composable(n, below)]
+    def improve(self, nodes: Iterable[Node], best: StepResult | None, limit: float = np.inf
+                ) -> StepResult | None:
+        """``best``, or the cheapest composed plan of ``nodes`` if better and below ``limit``:
+        a few hundredths of a second each, where a node's joint program takes seconds and runs
+        faster against a lower incumbent (its cutoff)."""
+        todo = [n for n in nodes
+                if self._composable(n, limit * (1 - self.options.mip_rel_gap))]
         for plan in self._map(self.compose, todo):
-            if plan is not None and (best is None or plan.cost < best.cost):
+            if plan is not None and plan.cost < min(limit, self._limit(best)):
                 best = plan
         return best
 
+    def _limit(self, best: StepResult | None) -> float:
+        """What a plan must cost less than to matter: the best so far, or the cutoff."""
+        return self.cutoff if best is None else min(best.cost, self.cutoff)
+
     def _feasible(self, traj, spec: Specification) -> bool:
-        """Whether ``traj`` keeps the model's constraints, ends at rest and satisfies ``spec``."""
-        if violations(self._model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
-            return False
-        return evaluate(spec.formula(), self._trace(traj), self.horizon)
-
-    def _trace(self, traj):
-        goals = [Rect.of(self.scenario.task.goals[o.goal]) for o in self.scenario.task.objects]
-
-        def value(atom: Atom, k: int) -> bool:
-            if atom.name == "eta":
-                i, j = atom.index
-                n = self._local.get(j - 1)
-                return False if n is None else bool(traj.grasp[k, i - 1, n])
-            (j,) = atom.index
-            n = self._local.get(j - 1)
-            if n is None:
-                return bool(in_goal(self.state.object_pos[j - 1], goals[j - 1]))
-            return bool(in_goal(traj.object_pos[k, n], self._model.goals[n]))
-
-        return value
+        return satisfies(self.scenario, self.state, spec, self._model, traj)
 
     # -- best-first ---------------------------------------------------------------------------
 
@@ -710,7 +707,8 @@ class StepSearch:
                 continue
             if np.isinf(lb):
                 continue  # a relaxation is infeasible: so is the node
-            if best is not None and lb >= best.cost * (1 - gap) - 1e-9:
+            limit = self._limit(best)
+            if lb >= limit * (1 - gap) - 1e-9:
                 heapq.heappush(heap, (lb, next(counter), node))
                 break
             if self._stopped():
@@ -724,13 +722,12 @@ class StepSearch:
                 # the same whatever the number of workers.
                 for _, _, other in heapq.nsmallest(FETCH, heap):
                     need += self.missing(other)
-                self.fetch(((k, True) for k in need[:FETCH]),
-                           cutoff=np.inf if best is None else best.cost)
+                self.fetch(((k, True) for k in need[:FETCH]), cutoff=limit)
                 heapq.heappush(heap, (self.bound(node), next(counter), node))
                 continue
             # Before a joint program, the cheap plans of every node with complete bounds: a
             # better incumbent cuts the joint programs short, or this one off.
-            improved = self.improve([node] + [n for _, _, n in sorted(heap)], best)
+            improved = self.improve([node] + [n for _, _, n in sorted(heap)], best, limit)
             if improved is not best:
                 best = improved
                 heapq.heappush(heap, (lb, next(counter), node))
@@ -741,17 +738,16 @@ class StepSearch:
             while heap and len(batch) < BATCH:
                 _, _, other = heap[0]
                 lb_other = self.bound(other)
-                if self.missing(other) or np.isinf(lb_other) or (
-                        best is not None and lb_other >= best.cost * (1 - gap) - 1e-9):
+                if self.missing(other) or np.isinf(lb_other) or \
+                        lb_other >= limit * (1 - gap) - 1e-9:
                     break
                 heapq.heappop(heap)
                 batch.append((lb_other, other))
-            incumbent = np.inf if best is None else best.cost
             lone = len(batch) == 1  # then it spreads its order parts over the workers instead
-            results = self._map(lambda n, cut=incumbent, spread=lone: self.evaluate(
+            results = self._map(lambda n, cut=limit, spread=lone: self.evaluate(
                 n, cut, spread), [n for _, n in batch])
             for (lb_node, _), res in zip(batch, results, strict=True):
-                if res.status.has_solution and (best is None or res.cost < best.cost):
+                if res.status.has_solution and res.cost < self._limit(best):
                     best = res
                 if res.status in (Status.FEASIBLE, Status.TIME_LIMIT):
                     undecided = min(undecided, max(lb_node, _bound(res)))
@@ -765,14 +761,37 @@ class StepSearch:
         no plan (infeasible when the bound is infinite, else undecided)."""
         binaries = 3 * (self.horizon + 1) * len(self.spec.objects)
         if best is None:
-            status = Status.INFEASIBLE if np.isinf(open_bound) else Status.TIME_LIMIT
+            # with a cutoff, "infeasible" is "no plan cheaper than it", and that is its bound
+            ruled = open_bound >= self.cutoff * (1 - self.options.mip_rel_gap) - 1e-9
+            status = Status.INFEASIBLE if ruled else Status.TIME_LIMIT
             return StepResult(status, self.horizon, None, np.inf, wall, 0.0, np.inf, binaries,
-                              None, bound=open_bound)
+                              None, bound=min(open_bound, self.cutoff))
         lower = min(open_bound, best.cost)
         gap = max(0.0, (best.cost - lower) / max(abs(best.cost), 1e-12))
         status = Status.OPTIMAL if gap <= self.options.mip_rel_gap + 1e-9 else Status.FEASIBLE
         return replace(best, status=status, solve_time_s=wall, build_time_s=0.0, gap=gap,
                        binaries=binaries, bound=lower)
+
+
+def satisfies(scenario: Scenario, state: State, spec: Specification, model: Model,
+              traj: Trajectory) -> bool:
+    """Whether ``traj`` (over ``spec``'s objects, from ``state``) keeps the model's
+    constraints, ends at rest and satisfies ``spec`` (evaluated on its trace by ``evaluate.py``,
+    which shares no code with the encoder)."""
+    if violations(model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
+        return False
+    local = {j: n for n, j in enumerate(spec.objects)}
+    goals = [Rect.of(scenario.task.goals[o.goal]) for o in scenario.task.objects]
+
+    def value(atom: Atom, k: int) -> bool:
+        n = local.get(atom.index[-1] - 1)
+        if atom.name == "eta":
+            return False if n is None else bool(traj.grasp[k, atom.index[0] - 1, n])
+        if n is None:
+            return bool(in_goal(state.object_pos[atom.index[0] - 1], goals[atom.index[0] - 1]))
+        return bool(in_goal(traj.object_pos[k, n], model.goals[n]))
+
+    return evaluate(spec.formula(), value, len(traj.force))
 
 
 _UNKNOWN = StepResult(Status.ERROR, 0, None, np.inf, 0.0, 0.0, np.inf, 0, None)
@@ -827,12 +846,13 @@ def _bound(res: StepResult) -> float:
 
 @contextmanager
 def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None, below: dict | None = None):
-    """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
+               options: SolveOptions | None, below: dict | None = None, **bounds):
+    """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``
+    (``bounds``: its ``cutoff`` or ``incumbent``)."""
     options = options or solver_options(scenario)
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
         yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool,
-                         below={} if below is None else below)
+                         below={} if below is None else below, **bounds)
 
 
 def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
@@ -858,13 +878,21 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None,
-                below: dict[tuple, StepResult] | None = None) -> StepResult:
+                below: dict[tuple, StepResult] | None = None, cutoff: float = np.inf,
+                incumbent: StepResult | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
     ``below``: the relaxations with a plan at ``horizon − 1`` (:attr:`StepSearch.below`),
-    replaced by this horizon's, for the next horizon of the same step."""
+    replaced by this horizon's, for the next horizon of the same step.
+
+    With a ``cutoff`` (a witness's cost, ``sequential.plan_step``) only plans cheaper than it
+    are sought, "infeasible" meaning none; with an ``incumbent`` (a plan of this horizon, the
+    witness) the search starts from it. Either way there is no feasibility pass, and the relay
+    nodes are searched from the start: the optimum is the monolithic one (as ``handover:
+    always``) where the relays' objects may be handed over, below the cutoff or incumbent."""
     t0 = time.perf_counter()
-    with _searching(scenario, state, spec, horizon, options, below) as search:
-        if search.feasible():
+    with _searching(scenario, state, spec, horizon, options, below, cutoff=cutoff,
+                    incumbent=incumbent) as search:
+        if search.bounded or search.feasible():
             res = search.run()
         else:
             res = search.result(None, np.inf, time.perf_counter() - t0)

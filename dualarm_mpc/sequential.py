@@ -19,15 +19,21 @@ from dualarm_mpc.mld import REST_TOL, Model, Rect, State, delivered, in_goal, re
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.route import horizon_bound
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
+from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, satisfies, search_step
 from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import Specification, rule_formulas, specification
+from dualarm_mpc.spec import Specification, rule_formulas, specification, with_no_throw
 
 # Seconds a step may go without a plan before the largest horizon is checked (plan_step): the
 # check costs up to CAP_CHECK_TIME_S, wasted when the step has a plan, so only a step that has
 # already spent several times that is checked.
 CHECK_CAP_AFTER_S = 10.0
 CAP_CHECK_TIME_S = 3.0  # the whole of that check
+# The witness policy (below_witness): the step's budget after its witness, as a share of the
+# per-horizon time limit; the first round's slice of it for each horizon below T₁; and the
+# least time a horizon is given (less decides nothing).
+STEP_BUDGET_SHARE = 1 / 3
+FIRST_SLICE_SHARE = 1 / 8
+MIN_HORIZON_TIME_S = 1.0
 
 
 class PlanningError(RuntimeError):
@@ -113,9 +119,104 @@ def at_rest_in_goal(scenario: Scenario, state: State) -> np.ndarray:
 def plan_step(scenario: Scenario, state: State, spec: Specification,
               options: SolveOptions | None = None,
               on_try: Callable[[StepResult], None] | None = None) -> tuple[StepResult, float]:
-    """Lines 4–6 of Algorithm 1: from predictT, raise T until a plan is found (an infeasible or
-    timed-out horizon counts as "not yet"). Returns the result and the step's total solve time
-    (wall time, everything included).
+    """Lines 4–6 of Algorithm 1 by the scenario's ``solver.horizons`` policy. Returns the
+    result (with :attr:`StepResult.minimal` and the witness's cost and horizon) and the step's
+    total solve time (wall time, everything included).
+
+    ``exact`` (:func:`first_plan`): from predictT, raise T until a plan is found. ``witness``
+    (the skeleton search's default): first the no-throw witness (:func:`witness`), then the
+    horizons below its T₁ within one budget for the step, each for a plan cheaper than the
+    witness (:func:`below_witness`); the step's plan is never worse than its witness."""
+    t0 = time.perf_counter()
+    found = None
+    if scenario.solver.horizons == "witness" and scenario.solver.search == "skeleton":
+        found = witness(scenario, state, spec, options)
+    if found is None:
+        res = first_plan(scenario, state, spec, options, on_try)
+    else:
+        res = below_witness(scenario, state, spec, found, options, on_try)
+    return res, time.perf_counter() - t0
+
+
+def witness(scenario: Scenario, state: State, spec: Specification,
+            options: SolveOptions | None) -> StepResult | None:
+    """The step's witness: the plan of ``spec`` with no-throw (18) for every object
+    (:func:`spec.with_no_throw`, a restriction: quick where ``spec`` allows relays), at its own
+    first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by the evaluator
+    (:func:`search.satisfies`); None where ``spec`` has no-throw already, or the restriction
+    has no plan or none in time."""
+    restricted = with_no_throw(spec)
+    if restricted is None:
+        return None
+    try:
+        res = first_plan(scenario, state, restricted, options)
+    except PlanningError:
+        return None
+    model = Model.from_scenario(scenario, list(spec.objects))
+    if not satisfies(scenario, state, spec, model, res.trajectory):
+        return None
+    # Its solver values are those of the restriction's program (other LTL columns): a MIP start
+    # from its forces and grasps instead (search._start).
+    return dataclasses.replace(res, solution=None, variables=None)
+
+
+def below_witness(scenario: Scenario, state: State, spec: Specification, found: StepResult,
+                  options: SolveOptions | None,
+                  on_try: Callable[[StepResult], None] | None = None) -> StepResult:
+    """The step's plan from its witness ``found`` (horizon T₁, cost c_W): the horizons from
+    predictT below T₁ are searched for a plan cheaper than c_W (a cutoff), the lowest with one
+    taken; failing that, T₁'s optimum from the witness (the incumbent). All of it within one
+    budget for the step, ``STEP_BUDGET_SHARE`` of ``solver.time_limit_s``, in rounds: each
+    horizon still undecided gets ``FIRST_SLICE_SHARE`` of the budget, four times as much in
+    the next round, so that one hard horizon does not take the time the others would be
+    decided in. A horizon left undecided makes the step's horizon not proven minimal
+    (:attr:`StepResult.minimal`); T₁ left undecided keeps the witness (``feasible``)."""
+    options = options or solver_options(scenario)
+    budget = STEP_BUDGET_SHARE * options.time_limit_s
+    deadline = time.perf_counter() + budget
+    undecided = list(range(predict_horizon(scenario, state, spec), found.horizon))
+    best = None  # the lowest horizon's plan cheaper than the witness
+    slice_s = FIRST_SLICE_SHARE * budget
+    while undecided:
+        for T in list(undecided):
+            _stop_if_asked(options)
+            left = deadline - time.perf_counter()
+            if left < MIN_HORIZON_TIME_S:
+                break
+            limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
+            res = search_step(scenario, state, spec, T,
+                              dataclasses.replace(options, time_limit_s=limit),
+                              cutoff=found.cost)
+            _stop_if_asked(options)
+            if on_try:
+                on_try(res)
+            if res.status.has_solution:
+                best = res
+                undecided = [t for t in undecided if t < T]  # the higher ones matter no more
+                break
+            if res.status is Status.INFEASIBLE:
+                undecided.remove(T)
+        if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
+            break
+        slice_s *= 4
+    minimal = not undecided
+    if best is None:
+        left = max(deadline - time.perf_counter(), MIN_HORIZON_TIME_S)
+        best = search_step(scenario, state, spec, found.horizon,
+                           dataclasses.replace(options, time_limit_s=left), incumbent=found)
+        _stop_if_asked(options)
+        if on_try:
+            on_try(best)
+    return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,
+                               witness_horizon=found.horizon)
+
+
+def first_plan(scenario: Scenario, state: State, spec: Specification,
+               options: SolveOptions | None = None,
+               on_try: Callable[[StepResult], None] | None = None) -> StepResult:
+    """Lines 4–6 of Algorithm 1 as the paper: from predictT, raise T until a plan is found (an
+    infeasible or timed-out horizon counts as "not yet"; the result's ``minimal`` says whether
+    every one was proven infeasible).
 
     With the skeleton search and a specification whose feasibility is monotone in T
     (:meth:`Specification.monotone_in_horizon`), once the step went ``CHECK_CAP_AFTER_S``
@@ -140,7 +241,7 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
             on_try(res)
         last = res
         if res.status.has_solution:
-            return res, time.perf_counter() - t0
+            return dataclasses.replace(res, minimal=proven)
         proven = proven and res.status is Status.INFEASIBLE
         if res.status is Status.ERROR:
             break
@@ -251,8 +352,9 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         done = done | now
         seg = Segment(objects=objects, delivered=newly, horizon=res.horizon,
                       status=res.status.value, solve_time_s=total, cost=res.cost,
-                      cpu_time_s=cpu,
-                      binaries=res.binaries, gap=float(res.gap))
+                      cpu_time_s=cpu, binaries=res.binaries, gap=float(res.gap),
+                      horizon_proven_minimal=res.minimal,
+                      witness_cost=res.witness_cost, witness_horizon=res.witness_horizon)
         segments.append(seg)
         if progress:
             progress(seg)

@@ -338,6 +338,18 @@ def specification(scenario: Scenario, objects: list[int], m_o: int | None = None
     )
 
 
+def with_no_throw(spec: Specification) -> Specification | None:
+    """``spec`` and no-throw (18) for every object of the step: a restriction (each of its plans
+    is one of ``spec``'s), whose search is far quicker where ``spec`` allows relays (route
+    bounds and order splits apply to every object); its plan is the step's witness
+    (``sequential.plan_step``). None when no-throw is already in force for them all."""
+    if spec.released_only_in_goal() == frozenset(spec.objects):
+        return None
+    name = "no-throw (18)"
+    rule = expand(parse(RULE_TEXT[name]), [j + 1 for j in spec.objects])
+    return replace(spec, rules=(*spec.rules, (f"{name}, the witness's", rule)))
+
+
 # --- relaxations for the skeleton search (search.py) and the consistency check ---------------
 
 

@@ -126,6 +126,32 @@ def test_horizon_is_the_smallest_feasible_one() -> None:
     assert not solve_step(scenario, state, spec, T - 1).status.has_solution
 
 
+def test_witness_policy_is_never_worse_than_its_witness() -> None:
+    """Rule 2 allows relays; its no-throw witness is a plan of the real specification, and the
+    step's plan costs no more. With ``exact`` there is no witness, and the same horizon."""
+    scenario = two_objects(rule=2)
+    state = State.initial(scenario)
+    spec = specification(scenario, [0, 1])
+    found = sequential.witness(scenario, state, spec, None)
+    assert found is not None and found.trajectory is not None
+    res, _ = sequential.plan_step(scenario, state, spec)
+    assert res.witness_cost == pytest.approx(found.cost) and res.witness_horizon == found.horizon
+    assert res.cost <= found.cost + 1e-9 and res.horizon <= found.horizon
+    exact = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
+                                                                      horizons="exact"))
+    plain, _ = sequential.plan_step(exact, state, spec)
+    assert plain.witness_cost is None and plain.minimal
+    assert res.horizon >= plain.horizon  # the witness policy may trade horizon for cost
+
+
+def test_no_witness_where_no_throw_is_in_force() -> None:
+    scenario = two_objects(rule=1)
+    state = State.initial(scenario)
+    assert sequential.witness(scenario, state, specification(scenario, [0, 1]), None) is None
+    res, _ = sequential.plan_step(scenario, state, specification(scenario, [0, 1]))
+    assert res.witness_cost is None and res.minimal
+
+
 def test_select_objects_prefers_the_cheapest() -> None:
     scenario = two_objects(
         objects=[
