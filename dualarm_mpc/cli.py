@@ -342,9 +342,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
         count[0] += 1
         names = ",".join(task.objects[j].name.removeprefix("object") for j in seg.delivered)
         fewer = len(seg.objects) < task.m_o  # the last objects: m_o shrinks to them
+        notes = [f"m_o = {len(seg.objects)}: the objects left"] if fewer else []
+        if seg.witness_cost is not None:
+            notes.append(f"witness {seg.witness_cost:.3f} at T = {seg.witness_horizon}")
+        if not seg.horizon_proven_minimal:
+            notes.append("a shorter horizon undecided")
         print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
               f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}"
-              + (f"  (m_o = {len(seg.objects)}: the objects left)" if fewer else ""), flush=True)
+              + "".join(f"  ({n})" for n in notes), flush=True)
 
     export = None
     if args.export:
