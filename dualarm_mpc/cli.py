@@ -466,7 +466,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"Meshcat: {meshcat.web_url()} (open it in a browser to watch the run live; "
               "it replays the run when the run ends)", flush=True)
     html = _output_of(args, "html")
-    summary = simulate(scenario, args.duration, html, progress, meshcat=meshcat)
+    summary = simulate(scenario, args.duration, html, progress, meshcat=meshcat,
+                       record_contacts=args.record_contacts)
     n_in = sum(d is not None for d in summary.delivered_time_s)
     wall = summary.wall_clock
     print(f"end: t = {summary.sim_time_s:.1f} s, {n_in}/{scenario.n_objects} objects resting in "
@@ -587,6 +588,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--meshcat", action="store_true",
                    help="start Drake's Meshcat server, print its URL and draw the run there live, "
                    "at real time (implies --realtime)")
+    p.add_argument("--record-contacts", action="store_true",
+                   help="also draw and record the contact forces and the proximity and inertia "
+                   "geometry (hidden at first; a larger replay)")
     p.add_argument("--realtime", action="store_true",
                    help="replan against the wall clock (a replan holds the simulation for "
                    "solver.replan_budget_s at most): the run depends on the machine's speed and "

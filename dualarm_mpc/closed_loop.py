@@ -223,19 +223,21 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
              progress: Callable[[Replan], None] | None = None,
              disturb: Disturbance | None = None, meshcat: Meshcat | None = None, *,
              observe: Callable[[DualArm, Context], None] | None = None,
-             solve: Solve | None = None) -> Summary:
+             solve: Solve | None = None, record_contacts: bool = False) -> Summary:
     """Run the closed loop; write the Meshcat replay to ``html`` if given. ``disturb`` adds
     events decided during the run; the summary lists them after the scenario's. ``meshcat``: a
     live server to draw the run in as it goes, at real time, and to replay it at the end.
     ``observe(dual, root_context)`` is called after every simulator step (to look, not to
     change anything); ``solve`` replaces the planner's solve of one horizon (``MakeDiagram``).
+    ``record_contacts``: draw and record the contact forces and the proximity and inertia
+    geometry too (by default only what a person sees).
     An event at or after the end is a ``ScenarioError`` (:func:`check_events`)."""
     duration = default_duration(scenario) if duration is None else duration
     check_events(scenario, duration)
     live = meshcat is not None
     if not live and html:
         meshcat = recording.start_meshcat()
-    dual = MakeDiagram(scenario, meshcat, solve=solve)
+    dual = MakeDiagram(scenario, meshcat, solve=solve, contacts=record_contacts)
     simulator = Simulator(dual.diagram)
     context = simulator.get_mutable_context()
     if live:

@@ -36,9 +36,12 @@ class DualArm:
 
 
 def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
-                time_step: float = 2e-3, solve: Solve | None = None) -> DualArm:
-    """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there.
-    ``solve`` replaces the planner's solve of one horizon (``MpcPlanner``)."""
+                time_step: float = 2e-3, solve: Solve | None = None,
+                contacts: bool = False) -> DualArm:
+    """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there
+    what a person sees (the illustration geometry), and with ``contacts`` also the contact forces
+    and the proximity and inertia geometry. ``solve`` replaces the planner's solve of one horizon
+    (``MpcPlanner``)."""
     builder = DiagramBuilder()
     station = AddStation(builder, scenario, time_step)
     stack = AddControlStack(builder, station)
@@ -52,9 +55,13 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     builder.Connect(station.scene_graph.get_query_output_port(),
                     clearance.get_geometry_query_input_port())
     if meshcat is not None:
-        from pydrake.visualization import AddDefaultVisualization
+        from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
-        AddDefaultVisualization(builder, meshcat)
+        # Drake's default publishes all four; the contact forces and the hidden geometry were
+        # nine tenths of a replay's animation (docs/drake.md, "Recording and replay").
+        config = VisualizationConfig(publish_proximity=contacts, publish_inertia=contacts,
+                                     publish_contacts=contacts)
+        ApplyVisualizationConfig(config, builder, meshcat=meshcat)
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
     return DualArm(diagram, station, stack, planner, clearance, goals)

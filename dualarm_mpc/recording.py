@@ -19,9 +19,10 @@ FOV_DEG = 30.0
 ASPECT = 1280 / 800
 ELEVATION_DEG = 60.0  # below the horizontal: steep enough that the columns hide no goal
 FILL = 0.92  # of the view, in its tighter direction, the framed points span (the rest: margin)
-# Drawn by Meshcat itself or by Drake's contact visualizer: they clutter the view of the work.
-# Hidden, not deleted: each has its checkbox in the Scene panel.
-HIDDEN = ("/Grid", "/Axes", "/drake/contact_forces")
+# Drawn by Meshcat itself or by Drake's contact visualizer (with ``record_contacts`` only): they
+# clutter the view of the work. Hidden, not deleted: each has its checkbox in the Scene panel.
+HIDDEN = ("/Grid", "/Axes")
+CONTACT_FORCES = "/drake/contact_forces"
 # Meshcat collapses its controls at load; a replay is driven from them (play, pause, time): open
 # them, with the long Scene tree folded so that Animations is at the top.
 OPEN_CONTROLS = "<script>viewer.gui.open(); viewer.gui.__folders.Scene.close();</script>\n</body>"
@@ -74,6 +75,8 @@ def show_the_work(meshcat: Meshcat, station: Station) -> None:
     meshcat.SetCameraPose(*camera_pose(np.array(table)))
     for path in HIDDEN:
         meshcat.SetProperty(path, "visible", False)
+    if meshcat.HasPath(CONTACT_FORCES):  # setting a property would add the path to the scene
+        meshcat.SetProperty(CONTACT_FORCES, "visible", False)
 
 
 def show_goal(meshcat: Meshcat, name: str, box: list[float], t: float) -> None:
