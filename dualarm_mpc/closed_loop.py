@@ -69,6 +69,9 @@ class Summary:
     # The least distance between the two arms' collision geometries over the run, sampled every
     # 20 ms by SceneGraph (systems/clearance.py); None if the run took no sample.
     min_arm_clearance_m: float | None = None
+    # The deepest any hand geometry (tip, quill) reached into any object's box over the run,
+    # sampled as ``min_arm_clearance_m`` (0 if none ever did); None if the run took no sample.
+    max_hand_penetration_m: float | None = None
     # What the run took on this machine, which depends on its speed and load: ``wall_time_s``,
     # ``realtime_factor`` (simulated / wall time) and ``replan_wall_s`` (one per replan, as in
     # ``replans``). In the JSON only in real time, where it explains the run; in lockstep the
@@ -323,15 +326,23 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         replans_over_budget=[round(r.t, 3) for r in replans
                              if r.status in ("searching", "over_budget")],
         interrupted=interrupted,
-        min_arm_clearance_m=_min_arm_clearance(dual, context),
+        min_arm_clearance_m=_least(dual.clearance, context),
+        max_hand_penetration_m=_penetration(_least(dual.hand_clearance, context)),
         wall_clock={"wall_time_s": round(wall, 3),
                     "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),
                     "replan_wall_s": [round(r.wall_s, 4) for r in replans]},
     )
 
 
-def _min_arm_clearance(dual, context) -> float | None:
-    clearance = dual.clearance.get_min_clearance_output_port().Eval(
-        dual.clearance.GetMyContextFromRoot(context))[0]
-    # floored to 0.1 mm, so that the value reported is never more than the one measured
-    return math.floor(clearance * 1e4) / 1e4 if np.isfinite(clearance) else None
+def _least(clearance, context) -> float | None:
+    """The least distance ``clearance`` measured, floored to 0.1 mm: a clearance reported is
+    never more than measured, a penetration never less."""
+    least = clearance.get_min_clearance_output_port().Eval(
+        clearance.GetMyContextFromRoot(context))[0]
+    if not np.isfinite(least):
+        return None
+    return math.floor(least * 1e4) / 1e4
+
+
+def _penetration(least: float | None) -> float | None:
+    return None if least is None else max(0.0, -least)

@@ -18,7 +18,7 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from dualarm_mpc.mpc import Solve
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.station import AddControlStack, AddStation, ControlStack, Station
-from dualarm_mpc.systems.clearance import ArmClearance
+from dualarm_mpc.systems.clearance import Clearance
 from dualarm_mpc.systems.goals import GoalSource
 from dualarm_mpc.systems.mpc_planner import MpcPlanner
 
@@ -31,7 +31,8 @@ class DualArm:
     station: Station
     stack: ControlStack
     planner: MpcPlanner
-    clearance: ArmClearance
+    clearance: Clearance  # between the two arms
+    hand_clearance: Clearance  # between the hands and the objects
     goals: GoalSource
 
 
@@ -51,9 +52,12 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     builder.Connect(stack.estimator.get_measured_state_output_port(),
                     planner.get_measured_state_input_port())
     builder.Connect(planner.get_plan_output_port(), stack.interpolator.get_plan_input_port())
-    clearance = builder.AddNamedSystem("arm_clearance", ArmClearance(station.arm_pairs))
-    builder.Connect(station.scene_graph.get_query_output_port(),
-                    clearance.get_geometry_query_input_port())
+    clearance = builder.AddNamedSystem("arm_clearance", Clearance(station.arm_pairs))
+    hand_clearance = builder.AddNamedSystem("hand_clearance",
+                                            Clearance(station.hand_object_pairs))
+    for system in (clearance, hand_clearance):
+        builder.Connect(station.scene_graph.get_query_output_port(),
+                        system.get_geometry_query_input_port())
     if meshcat is not None:
         from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
@@ -64,4 +68,4 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
         ApplyVisualizationConfig(config, builder, meshcat=meshcat)
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
-    return DualArm(diagram, station, stack, planner, clearance, goals)
+    return DualArm(diagram, station, stack, planner, clearance, hand_clearance, goals)

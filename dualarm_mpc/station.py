@@ -15,7 +15,7 @@ released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`
 source of its geometry and gains); the table, objects and goal patches are made here because
 their count, colours and friction come from the scenario. The arms' collision geometries collide
 with the other arm's only: contact between an arm and the table or the objects is filtered out
-here (the gripper holds objects by force, with the hand inside the object), within an arm by
+here (the gripper holds objects by force, the hand's tip on the object's top face), within an arm by
 the model's filter groups.
 """
 
@@ -95,7 +95,7 @@ class Station:
     actuator_order: tuple[int, ...]  # desired-state slot a → canonical joint c
     grasp_half_sizes: tuple[float, ...]
     object_size: float
-    grasp_height: float  # hand height when it holds an object: the object's centre
+    grasp_height: float  # hand height when it holds an object: its tip on the object's top face
     travel_height: float  # hand height when it holds nothing
     hand_range: tuple[float, float, float, float]  # the planner's workspace: [x0, x1, y0, y1]
     hand_gap: float  # eq. (16): x_arm2 + hand_gap ≤ x_arm1
@@ -104,6 +104,8 @@ class Station:
     table: list[float]  # the table top drawn: [x0, x1, y0, y1]
     # The pairs of collision geometries, one of each arm (right first), that may touch.
     arm_pairs: tuple[tuple[GeometryId, GeometryId], ...]
+    # Each collision geometry of a hand (tip, quill) with each object's box.
+    hand_object_pairs: tuple[tuple[GeometryId, GeometryId], ...]
 
     @property
     def n_objects(self) -> int:
@@ -233,6 +235,14 @@ def _arm_pairs(plant: MultibodyPlant, robot: ModelInstanceIndex,
     return tuple((a, b) for a in arms[0] for b in arms[1] if not inspector.CollisionFiltered(a, b))
 
 
+def _tip_radius(plant: MultibodyPlant, hand: RigidBody, scene_graph: SceneGraph) -> float:
+    """The radius of the hand's tip, the sphere at its frame origin (the model's)."""
+    inspector = scene_graph.model_inspector()
+    (tip,) = [g for g in plant.GetCollisionGeometriesForBody(hand)
+              if isinstance(inspector.GetShape(g), Sphere)]
+    return inspector.GetShape(tip).radius()
+
+
 def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2e-3) -> Station:
     """Adds the plant and scene graph of ``scenario`` to ``builder``; returns what was made.
 
@@ -301,7 +311,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         actuator_order=actuator_order,
         grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.task.objects),
         object_size=scenario.table.object_size,
-        grasp_height=scenario.table.object_size / 2,
+        grasp_height=scenario.table.object_size + _tip_radius(plant, hands[0], scene_graph),
         travel_height=travel,
         hand_range=tuple(scenario.robot.workspace),
         hand_gap=scenario.robot.hand_gap,
@@ -309,6 +319,9 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         slide_time_constant=scenario.table.slide_time_constant,
         table=_table_extent(scenario),
         arm_pairs=_arm_pairs(plant, robot, scene_graph),
+        hand_object_pairs=tuple((g, box) for hand in hands
+                                for g in plant.GetCollisionGeometriesForBody(hand)
+                                for box in boxes),
     )
 
 
@@ -361,6 +374,7 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
     gripper = builder.AddNamedSystem(
         "gripper",
         Gripper(plant, station.hands, station.objects, station.grasp_half_sizes, station.time_step,
+                hold_height=station.grasp_height - station.object_size / 2,
                 slide_time_constant=station.slide_time_constant),
     )
     estimator = builder.AddNamedSystem(

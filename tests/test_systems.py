@@ -17,7 +17,7 @@ from dualarm_mpc.plan import TimedTrajectory, Trajectory
 from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
 from dualarm_mpc.scenario import ObjectSpec, Scenario, Table, Task, load_scenario
 from dualarm_mpc.station import AddControlStack, AddStation, Station, goal_colour
-from dualarm_mpc.systems.clearance import ArmClearance
+from dualarm_mpc.systems.clearance import Clearance
 from dualarm_mpc.systems.controller import (
     GAP_SLACK,
     Controller,
@@ -201,7 +201,7 @@ class ArmPoser:
     def __init__(self):
         builder = DiagramBuilder()
         self.station = AddStation(builder, one_object_scenario())
-        self.clearance = builder.AddSystem(ArmClearance(self.station.arm_pairs))
+        self.clearance = builder.AddSystem(Clearance(self.station.arm_pairs))
         builder.Connect(self.station.scene_graph.get_query_output_port(),
                         self.clearance.get_geometry_query_input_port())
         self.diagram = builder.Build()

@@ -1,4 +1,5 @@
-"""Arm clearance: the smallest distance between the two arms over a run, measured by SceneGraph."""
+"""Clearance: the smallest distance between given pairs of geometries over a run, measured by
+SceneGraph: between the two arms, and between the hands and the objects."""
 
 from __future__ import annotations
 
@@ -14,20 +15,21 @@ from pydrake.systems.framework import LeafSystem
 CLEARANCE_PERIOD_S = 0.02
 
 
-class ArmClearance(LeafSystem):
-    """Samples the signed distance between the two arms every ``period`` and keeps the least.
+class Clearance(LeafSystem):
+    """Samples the signed distance of ``pairs`` every ``period`` and keeps the least.
 
     .. pydrake_system::
 
-        name: ArmClearance
+        name: Clearance
         input_ports:
         - geometry_query
         output_ports:
         - min_clearance
 
-    ``geometry_query``: SceneGraph's query output. ``pairs``: the pairs of collision geometries,
-    one of each arm, whose signed distance is measured (``Station.arm_pairs``): nothing else —
-    objects, table — counts. ``min_clearance`` (1): the least signed distance (m) of any pair
+    ``geometry_query``: SceneGraph's query output. ``pairs``: the pairs of collision geometries
+    whose signed distance is measured (``Station.arm_pairs``, ``Station.hand_object_pairs``;
+    SceneGraph measures a pair whether or not its contact is filtered out).
+    ``min_clearance`` (1): the least signed distance (m) of any pair
     at any sample so far, negative for a penetration; +inf before the first sample (t = 0).
     """
 
@@ -52,7 +54,7 @@ class ArmClearance(LeafSystem):
         return self._min_clearance
 
     def clearance(self, query: QueryObject) -> float:
-        """The least signed distance between the two arms now."""
+        """The least signed distance of the pairs now."""
         return min(query.ComputeSignedDistancePairClosestPoints(a, b).distance
                    for a, b in self._pairs)
 

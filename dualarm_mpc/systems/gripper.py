@@ -22,7 +22,8 @@ rest (at most 0.1 mm·τ/s short of the slide's limit).
 
 Pair (i, j) attaches at an update when ``grasp_command[i·N + j] > 0.5`` and hand i is inside the
 grasp box of object j: ``|Δp|∞ ≤ grasp_half_size_j + tolerance`` in the plane and within
-``height_tolerance`` of the object's centre in z (the hand has come down). It detaches as soon
+``height_tolerance`` of ``hold_height`` above the object's centre in z (the hand has come down:
+its tip on the top face, a suction cup; it never enters the object). It detaches as soon
 as the command drops. The attachments and offsets are discrete state, updated every
 ``update_period`` (the plant's time step).
 """
@@ -81,7 +82,8 @@ class Gripper(LeafSystem):
         stiffness: float = 2000.0,
         damping_ratio: float = 1.0,
         tolerance: float = 0.01,
-        height_tolerance: float = 0.03,
+        hold_height: float = 0.0,
+        height_tolerance: float = 0.015,
         yaw_time_constant: float = 0.05,
         slide_time_constant: float | None = None,
     ):
@@ -101,6 +103,7 @@ class Gripper(LeafSystem):
         self._hands = tuple(int(b.index()) for b in hand_bodies)
         self._objects = tuple(int(b.index()) for b in object_bodies)
         self._reach = np.asarray(grasp_half_sizes, dtype=float) + tolerance
+        self._hold_height = hold_height
         self._height_tolerance = height_tolerance
         self._k = stiffness
         masses = np.array([b.default_mass() for b in object_bodies])
@@ -189,7 +192,7 @@ class Gripper(LeafSystem):
                     d = poses[obj].translation() - p_hand
                     if (
                         np.max(np.abs(d[:2])) <= self._reach[j]
-                        and abs(d[2]) <= self._height_tolerance
+                        and abs(d[2] + self._hold_height) <= self._height_tolerance
                     ):
                         attached[pair] = 1.0
                         offset[pair] = d[:2]

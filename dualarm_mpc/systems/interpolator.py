@@ -5,8 +5,9 @@ The plan is a :class:`~dualarm_mpc.plan.TimedTrajectory`: step k of its trajecto
 positions and velocities at the steps (with one exception at releases, below). Its height
 follows a separate profile:
 
-- at ``travel_height`` while the hand holds nothing;
-- at ``grasp_height`` (the object's centre) while it holds any object;
+- at ``travel_height`` while the hand holds nothing (its tip clears every object);
+- at ``grasp_height`` (its tip on the objects' top faces) while it holds any object, so that
+  the tip never enters an object (docs/drake.md, the gripper);
 - it descends during the step before a grasp begins and rises during the step after a release
   (a hand that releases at step k and grasps again at k + 1 stays down).
 
