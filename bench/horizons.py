@@ -10,7 +10,7 @@ below the step's first plan is "infeasible" when proven so, "time_limit" when le
 cost, bound, gap, wall and CPU time (this process, every thread). Algorithm 1 takes the first
 horizon with a plan from predictT on, so every horizon below that one must be proven
 infeasible for the step to be decided; this shows which are, and at what cost. It is the
-measurement behind docs/search-experiments.md ("Open: a bound for relay nodes").
+measurement behind bench/search-experiments.md ("Open: a bound for relay nodes").
 
 Run it (from the repository root)::
 
