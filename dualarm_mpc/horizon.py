@@ -55,8 +55,7 @@ class StepResult:
     message: str = ""
     bound: float = 0.0  # the solver's proven lower bound on the cost
     # Of a step's plan (sequential.plan_step): every horizon below this one, from predictT, was
-    # proven to have no plan (under the witness policy: none cheaper than the witness); and the
-    # witness's cost and horizon, where there was one.
+    # proven to have no plan; and the witness's cost and horizon, where there was one.
     minimal: bool = False
     witness_cost: float | None = None
     witness_horizon: int | None = None

@@ -85,9 +85,8 @@ class Segment:
     binaries: int = 0
     gap: float = 0.0
     cpu_time_s: float = 0.0  # CPU time of the step summed over every worker thread
-    # Every shorter horizon from predictT was proven to have no plan (the witness policy: none
-    # cheaper than the witness); with status "optimal", the step's plan is then proven optimal
-    # at a proven-minimal horizon.
+    # Every shorter horizon from predictT was proven to have no plan; with status "optimal",
+    # the step's plan is then proven optimal at a proven-minimal horizon.
     horizon_proven_minimal: bool = False
     witness_cost: float | None = None  # the no-throw witness's (sequential.witness), if any
     witness_horizon: int | None = None

@@ -113,10 +113,8 @@ class StepSearch:
     # The relaxations with a plan at the horizon below (a step tries its horizons one by one):
     # each plan, idled one more step, stands for this horizon's feasibility probe.
     below: dict[tuple, StepResult] = field(default_factory=dict)
-    # Only plans cheaper than ``cutoff`` are sought (none found: "infeasible", no plan cheaper);
-    # ``incumbent``, a plan of this horizon, is the first best. Either way the feasibility pass
-    # is skipped and the relay nodes are searched at once (see :func:`search_step`).
-    cutoff: float = np.inf
+    # ``incumbent``, a plan of this horizon, is the first best: the feasibility pass is skipped
+    # and the relay nodes are searched at once (see :func:`search_step`).
     incumbent: StepResult | None = None
 
     def __post_init__(self) -> None:
@@ -140,8 +138,8 @@ class StepSearch:
 
     @property
     def bounded(self) -> bool:
-        """Whether a cutoff or an incumbent stands for the feasibility pass."""
-        return self.incumbent is not None or bool(np.isfinite(self.cutoff))
+        """Whether an incumbent stands for the feasibility pass."""
+        return self.incumbent is not None
 
     # -- the subprograms ----------------------------------------------------------------------
 
@@ -428,8 +426,8 @@ class StepSearch:
         return best
 
     def _limit(self, best: StepResult | None) -> float:
-        """What a plan must cost less than to matter: the best so far, or the cutoff."""
-        return self.cutoff if best is None else min(best.cost, self.cutoff)
+        """What a plan must cost less than to matter: the best so far."""
+        return np.inf if best is None else best.cost
 
     def _feasible(self, traj, spec: Specification) -> bool:
         return satisfies(self.scenario, self.state, spec, self._model, traj)
@@ -761,11 +759,9 @@ class StepSearch:
         no plan (infeasible when the bound is infinite, else undecided)."""
         binaries = 3 * (self.horizon + 1) * len(self.spec.objects)
         if best is None:
-            # with a cutoff, "infeasible" is "no plan cheaper than it", and that is its bound
-            ruled = open_bound >= self.cutoff * (1 - self.options.mip_rel_gap) - 1e-9
-            status = Status.INFEASIBLE if ruled else Status.TIME_LIMIT
+            status = Status.INFEASIBLE if open_bound == np.inf else Status.TIME_LIMIT
             return StepResult(status, self.horizon, None, np.inf, wall, 0.0, np.inf, binaries,
-                              None, bound=min(open_bound, self.cutoff))
+                              None, bound=open_bound)
         lower = min(open_bound, best.cost)
         gap = max(0.0, (best.cost - lower) / max(abs(best.cost), 1e-12))
         status = Status.OPTIMAL if gap <= self.options.mip_rel_gap + 1e-9 else Status.FEASIBLE
@@ -848,7 +844,7 @@ def _bound(res: StepResult) -> float:
 def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
                options: SolveOptions | None, below: dict | None = None, **bounds):
     """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``
-    (``bounds``: its ``cutoff`` or ``incumbent``)."""
+    (``bounds``: its ``incumbent``)."""
     options = options or solver_options(scenario)
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
         yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool,
@@ -878,19 +874,18 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None,
-                below: dict[tuple, StepResult] | None = None, cutoff: float = np.inf,
+                below: dict[tuple, StepResult] | None = None,
                 incumbent: StepResult | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
     ``below``: the relaxations with a plan at ``horizon − 1`` (:attr:`StepSearch.below`),
     replaced by this horizon's, for the next horizon of the same step.
 
-    With a ``cutoff`` (a witness's cost, ``sequential.plan_step``) only plans cheaper than it
-    are sought, "infeasible" meaning none; with an ``incumbent`` (a plan of this horizon, the
-    witness) the search starts from it. Either way there is no feasibility pass, and the relay
-    nodes are searched from the start: the optimum is the monolithic one (as ``handover:
-    always``) where the relays' objects may be handed over, below the cutoff or incumbent."""
+    With an ``incumbent`` (a plan of this horizon, the witness, ``sequential.plan_step``) the
+    search starts from it: there is no feasibility pass, and the relay nodes are searched from
+    the start: the optimum is the monolithic one (as ``handover: always``) where the relays'
+    objects may be handed over, below the incumbent."""
     t0 = time.perf_counter()
-    with _searching(scenario, state, spec, horizon, options, below, cutoff=cutoff,
+    with _searching(scenario, state, spec, horizon, options, below,
                     incumbent=incumbent) as search:
         if search.bounded or search.feasible():
             res = search.run()

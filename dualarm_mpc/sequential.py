@@ -124,9 +124,10 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     total solve time (wall time, everything included).
 
     ``exact`` (:func:`first_plan`): from predictT, raise T until a plan is found. ``witness``
-    (the skeleton search's default): first the no-throw witness (:func:`witness`), then the
-    horizons below its T₁ within one budget for the step, each for a plan cheaper than the
-    witness (:func:`below_witness`); the step's plan is never worse than its witness."""
+    (the skeleton search's default): first the no-throw witness (:func:`witness`), then
+    Algorithm 1 on the horizons below its T₁ within one budget for the step, its plan taken
+    where it is cheaper than the witness (:func:`below_witness`); the step's plan is never
+    worse than its witness."""
     t0 = time.perf_counter()
     found = None
     if scenario.solver.horizons == "witness" and scenario.solver.search == "skeleton":
@@ -163,19 +164,20 @@ def witness(scenario: Scenario, state: State, spec: Specification,
 def below_witness(scenario: Scenario, state: State, spec: Specification, found: StepResult,
                   options: SolveOptions | None,
                   on_try: Callable[[StepResult], None] | None = None) -> StepResult:
-    """The step's plan from its witness ``found`` (horizon T₁, cost c_W): the horizons from
-    predictT below T₁ are searched for a plan cheaper than c_W (a cutoff), the lowest with one
-    taken; failing that, T₁'s optimum from the witness (the incumbent). All of it within one
-    budget for the step, ``STEP_BUDGET_SHARE`` of ``solver.time_limit_s``, in rounds: each
-    horizon still undecided gets ``FIRST_SLICE_SHARE`` of the budget, four times as much in
-    the next round, so that one hard horizon does not take the time the others would be
-    decided in. A horizon left undecided makes the step's horizon not proven minimal
-    (:attr:`StepResult.minimal`); T₁ left undecided keeps the witness (``feasible``)."""
+    """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
+    predictT below T₁ are searched for the first with a plan, as :func:`first_plan` does, and its
+    optimum is the step's if it is cheaper than c_W; otherwise (or if no horizon below T₁ shows a
+    plan in time) T₁'s optimum from the witness (the incumbent). All of it within one budget for
+    the step, ``STEP_BUDGET_SHARE`` of ``solver.time_limit_s``, in rounds: each horizon still
+    undecided gets ``FIRST_SLICE_SHARE`` of the budget, four times as much in the next round, so
+    that one hard horizon does not take the time the others would be decided in. The step's
+    horizon is proven minimal (:attr:`StepResult.minimal`) when every horizon below it was proven
+    to have no plan; T₁ left undecided keeps the witness (``feasible``)."""
     options = options or solver_options(scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
     undecided = list(range(predict_horizon(scenario, state, spec), found.horizon))
-    best = None  # the lowest horizon's plan cheaper than the witness
+    first = None  # the plan of the lowest horizon below T₁ that has one
     slice_s = FIRST_SLICE_SHARE * budget
     while undecided:
         for T in list(undecided):
@@ -184,14 +186,13 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
             if left < MIN_HORIZON_TIME_S:
                 break
             limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
-            res = search_step(scenario, state, spec, T,
-                              dataclasses.replace(options, time_limit_s=limit),
-                              cutoff=found.cost)
+            res = solve_horizon(scenario, state, spec, T,
+                                dataclasses.replace(options, time_limit_s=limit))
             _stop_if_asked(options)
             if on_try:
                 on_try(res)
             if res.status.has_solution:
-                best = res
+                first = res
                 undecided = [t for t in undecided if t < T]  # the higher ones matter no more
                 break
             if res.status is Status.INFEASIBLE:
@@ -199,14 +200,16 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
         if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
             break
         slice_s *= 4
-    minimal = not undecided
-    if best is None:
+    if first is not None and first.cost < found.cost:
+        best, minimal = first, not undecided
+    else:
         left = max(deadline - time.perf_counter(), MIN_HORIZON_TIME_S)
         best = search_step(scenario, state, spec, found.horizon,
                            dataclasses.replace(options, time_limit_s=left), incumbent=found)
         _stop_if_asked(options)
         if on_try:
             on_try(best)
+        minimal = first is None and not undecided
     return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,
                                witness_horizon=found.horizon)
 

@@ -458,7 +458,8 @@ def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:
     assert f"wrote {out}" in printed.out
     data = json.loads(out.read_text())
     for key in ("mode", "replan_latency_s", "goals", "objects", "final_object_pos",
-                "final_object_speed", "delivered_time_s", "replans", "min_arm_clearance_m", "max_hand_penetration_m"):
+                "final_object_speed", "delivered_time_s", "replans", "min_arm_clearance_m",
+                "max_hand_penetration_m"):
         assert key in data, key
     assert data["mode"] == "lockstep" and data["replan_latency_s"] == 0.0
     assert "wall_clock" not in data and "real-time factor" in printed.out  # on stdout instead
