@@ -165,9 +165,9 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
                   options: SolveOptions | None,
                   on_try: Callable[[StepResult], None] | None = None) -> StepResult:
     """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
-    predictT below T₁ are searched for the first with a plan, as :func:`first_plan` does, and its
-    optimum is the step's if it is cheaper than c_W; otherwise (or if no horizon below T₁ shows a
-    plan in time) T₁'s optimum from the witness (the incumbent). All of it within one budget for
+    predictT below T₁ are searched for the first with a plan, as :func:`first_plan` does, and the
+    step's plan is the cheaper of its optimum and the witness; where no horizon below T₁ shows a
+    plan in time, T₁'s optimum from the witness (the incumbent). All of it within one budget for
     the step, ``STEP_BUDGET_SHARE`` of ``solver.time_limit_s``, in rounds: each horizon still
     undecided gets ``FIRST_SLICE_SHARE`` of the budget, four times as much in the next round, so
     that one hard horizon does not take the time the others would be decided in. The step's
@@ -200,8 +200,12 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
         if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
             break
         slice_s *= 4
-    if first is not None and first.cost < found.cost:
-        best, minimal = first, not undecided
+    if first is not None:
+        # Algorithm 1's horizon is below T₁: the cheaper of its plan and the witness (which
+        # is not then proven optimal at T₁: its bound holds for the restriction only).
+        best = first if first.cost < found.cost else dataclasses.replace(
+            found, status=Status.FEASIBLE, bound=0.0, gap=1.0)
+        minimal = best is first and not undecided
     else:
         left = max(deadline - time.perf_counter(), MIN_HORIZON_TIME_S)
         best = search_step(scenario, state, spec, found.horizon,
@@ -209,7 +213,7 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
         _stop_if_asked(options)
         if on_try:
             on_try(best)
-        minimal = first is None and not undecided
+        minimal = not undecided
     return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,
                                witness_horizon=found.horizon)
 
