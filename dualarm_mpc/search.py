@@ -113,19 +113,16 @@ class StepSearch:
     # The relaxations with a plan at the horizon below (a step tries its horizons one by one):
     # each plan, idled one more step, stands for this horizon's feasibility probe.
     below: dict[tuple, StepResult] = field(default_factory=dict)
-    # ``incumbent``, a plan of this horizon, is the first best: the feasibility pass is skipped
-    # and the relay nodes are searched at once (see :func:`search_step`).
-    incumbent: StepResult | None = None
 
     def __post_init__(self) -> None:
         self._relax: dict[tuple, StepResult] = {}
         self._exact: set = set()  # keys of the relaxations solved to optimality
-        self._witness = self.incumbent  # a plan the feasibility pass found, or the incumbent
+        self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._slice = np.inf  # the time a program may take (the feasibility pass's rounds)
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
         # ``auto``: relays are searched once the nodes without them have no plan (see
         # handed_over_objects); the nodes the feasibility pass proved infeasible meanwhile.
-        self._relays = self.bounded
+        self._relays = False
         self._ruled: set[Node] = set()
         self._deadline = time.perf_counter() + self.options.time_limit_s
         self._program = HorizonProgram(self.scenario, self.state, list(self.spec.objects),
@@ -135,11 +132,6 @@ class StepSearch:
         local_grasp = self.state.grasp[:, list(self.spec.objects)]
         self._held = [j for n, j in enumerate(self.spec.objects) if local_grasp[:, n].any()]
         self._no_throw = frozenset(self._local[j] for j in self.spec.released_only_in_goal())
-
-    @property
-    def bounded(self) -> bool:
-        """Whether an incumbent stands for the feasibility pass."""
-        return self.incumbent is not None
 
     # -- the subprograms ----------------------------------------------------------------------
 
@@ -842,13 +834,12 @@ def _bound(res: StepResult) -> float:
 
 @contextmanager
 def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None, below: dict | None = None, **bounds):
-    """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``
-    (``bounds``: its ``incumbent``)."""
+               options: SolveOptions | None, below: dict | None = None):
+    """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
     options = options or solver_options(scenario)
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
         yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool,
-                         below={} if below is None else below, **bounds)
+                         below={} if below is None else below)
 
 
 def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
@@ -874,20 +865,13 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None,
-                below: dict[tuple, StepResult] | None = None,
-                incumbent: StepResult | None = None) -> StepResult:
+                below: dict[tuple, StepResult] | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
     ``below``: the relaxations with a plan at ``horizon − 1`` (:attr:`StepSearch.below`),
-    replaced by this horizon's, for the next horizon of the same step.
-
-    With an ``incumbent`` (a plan of this horizon, the witness, ``sequential.plan_step``) the
-    search starts from it: there is no feasibility pass, and the relay nodes are searched from
-    the start: the optimum is the monolithic one (as ``handover: always``) where the relays'
-    objects may be handed over, below the incumbent."""
+    replaced by this horizon's, for the next horizon of the same step."""
     t0 = time.perf_counter()
-    with _searching(scenario, state, spec, horizon, options, below,
-                    incumbent=incumbent) as search:
-        if search.bounded or search.feasible():
+    with _searching(scenario, state, spec, horizon, options, below) as search:
+        if search.feasible():
             res = search.run()
         else:
             res = search.result(None, np.inf, time.perf_counter() - t0)

@@ -165,19 +165,18 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
                   options: SolveOptions | None,
                   on_try: Callable[[StepResult], None] | None = None) -> StepResult:
     """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
-    predictT below T₁ are searched for the first with a plan, as :func:`first_plan` does, and the
-    step's plan is the cheaper of its optimum and the witness; where no horizon below T₁ shows a
-    plan in time, T₁'s optimum from the witness (the incumbent). All of it within one budget for
-    the step, ``STEP_BUDGET_SHARE`` of ``solver.time_limit_s``, in rounds: each horizon still
-    undecided gets ``FIRST_SLICE_SHARE`` of the budget, four times as much in the next round, so
-    that one hard horizon does not take the time the others would be decided in. The step's
-    horizon is proven minimal (:attr:`StepResult.minimal`) when every horizon below it was proven
-    to have no plan; T₁ left undecided keeps the witness (``feasible``)."""
+    predictT up to T₁ are searched for the first with a plan, as :func:`first_plan` does (T₁
+    has one: the witness), and the step's plan is the cheaper of its optimum and the witness.
+    All of it within one budget for the step, ``STEP_BUDGET_SHARE`` of
+    ``solver.time_limit_s``, in rounds: each horizon still undecided gets ``FIRST_SLICE_SHARE``
+    of the budget, four times as much in the next round, so that one hard horizon does not
+    take the time the others would be decided in. The step's horizon is proven minimal
+    (:attr:`StepResult.minimal`) when every horizon below it was proven to have no plan."""
     options = options or solver_options(scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
-    undecided = list(range(predict_horizon(scenario, state, spec), found.horizon))
-    first = None  # the plan of the lowest horizon below T₁ that has one
+    undecided = list(range(predict_horizon(scenario, state, spec), found.horizon + 1))
+    first = None  # the plan of the lowest horizon that has one
     slice_s = FIRST_SLICE_SHARE * budget
     while undecided:
         for T in list(undecided):
@@ -200,20 +199,12 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
         if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
             break
         slice_s *= 4
-    if first is not None:
-        # Algorithm 1's horizon is below T₁: the cheaper of its plan and the witness (which
-        # is not then proven optimal at T₁: its bound holds for the restriction only).
-        best = first if first.cost < found.cost else dataclasses.replace(
-            found, status=Status.FEASIBLE, bound=0.0, gap=1.0)
-        minimal = best is first and not undecided
-    else:
-        left = max(deadline - time.perf_counter(), MIN_HORIZON_TIME_S)
-        best = search_step(scenario, state, spec, found.horizon,
-                           dataclasses.replace(options, time_limit_s=left), incumbent=found)
-        _stop_if_asked(options)
-        if on_try:
-            on_try(best)
-        minimal = not undecided
+    if first is not None and first.cost < found.cost:
+        best = first
+    else:  # not proven optimal at T₁: the witness's bound holds for the restriction only
+        best = dataclasses.replace(found, status=Status.FEASIBLE, bound=0.0, gap=1.0)
+    minimal = ((first is None or first.horizon == best.horizon)
+               and not [t for t in undecided if t < best.horizon])
     return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,
                                witness_horizon=found.horizon)
 
