@@ -10,9 +10,9 @@ comments, the first naming what it shows::
     <!-- /report -->
 
 A file name renders that file as its bench's own report does (``--summarize``), the bench told
-by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, ``horizons``);
-``paper`` is Table II of the paper beside ours, pooled over every ``table2*.json``. Every table
-ends with the records it comes from: their date and the machine's speed.
+by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, ``horizons``,
+``demo``); ``paper`` is Table II of the paper beside ours, pooled over every ``table2*.json``.
+Every table ends with the records it comes from: their date and the machine's speed.
 
 Run it (from the repository root)::
 
@@ -36,7 +36,7 @@ from benchlib import fmt, table
 
 ROOT = Path(__file__).resolve().parent.parent
 BLOCK = re.compile(r"(<!-- report (\S+) -->\n)(.*?)(<!-- /report -->)", re.DOTALL)
-BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons")
+BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons", "demo")
 
 
 class RecordError(Exception):
