@@ -288,8 +288,11 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     summary = [summarize(records, rule) for rule in args.rules]
     limits = sorted({r["time_limit_s"] for r in records if "time_limit_s" in r})
     extra = "".join(f", {json.dumps(e)}" for e in args.set)
+    modes = sorted({r.get("mode", "realtime") for r in records})
+    limit = (f"time limit {', '.join(f'{v:g}' for v in limits) or '—'} s per solve"
+             if "realtime" in modes else "work limits, no time limit")
     head = (f"Closed loop, {SCENARIO}, (m_o, n_o) = ({M_O}, {N_O}), delivery rest, goal margin "
-            f"0.03 m{extra}, time limit {', '.join(f'{v:g}' for v in limits) or '—'} s per solve, "
+            f"0.03 m{extra}, {' and '.join(modes) or '—'}, {limit}, "
             f"Δt = 1 s. Wall per replan over replans with work (not done/stuck); per-rule rows "
             f"pool all replans of the rule, real-time factor = total sim time / total wall time.")
     return "\n".join([head, "", main_table(records, summary), "", "Detail:", "",
