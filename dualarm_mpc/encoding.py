@@ -1,6 +1,7 @@
 """LTL over the finite horizon → mixed-integer linear constraints ([7] Wolff, [18] Kurtz & Lin).
 
-The formula is put in negation normal form, then each subformula φ at step k gets a truth value
+The formula is put in negation normal form (``ltl.nnf``, which also writes ``<->``, ``xor``,
+``W`` and ``M`` with the operators below), then each subformula φ at step k gets a truth value
 z_φ(k) that may only be 1 if φ holds, which is all that is needed with the root fixed to 1:
 
 * atoms are the model's binaries themselves — a *decision* atom (η) is exact, so ``¬η`` is

@@ -1,8 +1,9 @@
 """Direct evaluation of an LTLf formula on a finite trace: the independent oracle for every plan.
 
-Every node type, Not and Implies included, is evaluated straight from its semantics on steps
-k = 0..T (T = horizon). Nothing here is shared with the encoders, and no rewriting (such as NNF)
-happens first, so agreement between a plan and this module is evidence, not an identity.
+Every node type, Not, Implies, Equiv, Xor, WeakUntil and StrongRelease included, is evaluated
+straight from its semantics on steps k = 0..T (T = horizon). Nothing here is shared with the
+encoders, and no rewriting (such as NNF) happens first, so agreement between a plan and this module
+is evidence, not an identity.
 
 Semantics at step k, with T the last step::
 
@@ -10,6 +11,9 @@ Semantics at step k, with T the last step::
     G a     a(t) for all t in k..T            F a     a(t) for some t in k..T
     a U b   some t in k..T: b(t) and a(s) for all s in k..t-1
     a R b   all t in k..T: b(t) or a(s) for some s in k..t-1
+    a W b   a U b, or a(t) for all t in k..T
+    a M b   some t in k..T: a(t) and b(t) and b(s) for all s in k..t-1
+    a <-> b a(k) == b(k)                      a xor b a(k) != b(k)
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from dualarm_mpc.ltl import (
     And,
     Atom,
     Const,
+    Equiv,
     Eventually,
     Formula,
     Implies,
@@ -28,8 +33,11 @@ from dualarm_mpc.ltl import (
     Not,
     Or,
     Release,
+    StrongRelease,
     Until,
     WeakNext,
+    WeakUntil,
+    Xor,
 )
 
 __all__ = ["Trace", "evaluate", "truth_table"]
@@ -109,6 +117,12 @@ class _Evaluator:
             case Implies(lhs, rhs):
                 a, b = self.vector(lhs), self.vector(rhs)
                 return tuple((not a[k]) or b[k] for k in steps)
+            case Equiv(lhs, rhs):
+                a, b = self.vector(lhs), self.vector(rhs)
+                return tuple(a[k] == b[k] for k in steps)
+            case Xor(lhs, rhs):
+                a, b = self.vector(lhs), self.vector(rhs)
+                return tuple(a[k] != b[k] for k in steps)
             case Next(arg):
                 a = self.vector(arg)
                 return tuple(k < T and a[k + 1] for k in steps)
@@ -131,6 +145,19 @@ class _Evaluator:
                 a, b = self.vector(lhs), self.vector(rhs)
                 return tuple(
                     all(b[t] or any(a[s] for s in range(k, t)) for t in range(k, T + 1))
+                    for k in steps
+                )
+            case WeakUntil(lhs, rhs):
+                a, b = self.vector(lhs), self.vector(rhs)
+                return tuple(
+                    any(b[t] and all(a[s] for s in range(k, t)) for t in range(k, T + 1))
+                    or all(a[t] for t in range(k, T + 1))
+                    for k in steps
+                )
+            case StrongRelease(lhs, rhs):
+                a, b = self.vector(lhs), self.vector(rhs)
+                return tuple(
+                    any(a[t] and b[t] and all(b[s] for s in range(k, t)) for t in range(k, T + 1))
                     for k in steps
                 )
         raise TypeError(f"not a Formula: {f!r}")

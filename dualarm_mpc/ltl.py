@@ -5,18 +5,24 @@ Nodes are frozen dataclasses, so they hash and compare structurally and can serv
 The same tree is built from text (:func:`parse`) or from Python (``G(eta(1, 3) >> WX(theta(3)))``),
 and ``parse(str(f)) == f`` for every formula.
 
-Text syntax, lowest to highest precedence::
+Text syntax, lowest to highest precedence (Spot's; every spelling in docs/ltl.md)::
 
-    a -> b            implication (right-associative)
-    a | b | c         disjunction (n-ary)
-    a & b & c         conjunction (n-ary)
-    a U b,  a R b     until, release (right-associative)
-    !a ~a X a WX a N a G a F a
-                      not, strong next, weak next (WX and N are synonyms), always, eventually
-    ( a )  true  false  p  eta[1,3]  theta[j]
+    a -> b   a <-> b  implication, equivalence (right-associative; also => <=> --> <-->)
+    a | b | c         disjunction (n-ary; also || \\/)
+    a xor b           exclusive or (left-associative; also ^)
+    a & b & c         conjunction (n-ary; also && /\\)
+    a U b  a R b  a W b  a M b
+                      until, release (also V), weak until, strong release (right-associative)
+    !a X a WX a G a F a
+                      not (also ~), strong next (also X[!]), weak next (also N), always (also []),
+                      eventually (also <>); Spot's X[n], F[n:m] and G[n:m] expand to nested nexts
+    ( a )  true  false  last  p  eta[1,3]  theta[j]  "eta[1,3]"
+                      constants (also 1, 0), the last step (WX false), atoms (quoted as in Spot)
 
-Index entries are 1-based integers (the paper's convention) or identifiers that act as placeholders,
-filled in later by :func:`substitute`. The words ``X WX N G F U R true false`` are reserved.
+As in Spot, a unary F, G or X may touch its argument (``GFa`` is ``G F a``), so an atom whose
+name starts with one of them and a letter is written in double quotes. Index entries are 1-based
+integers (the paper's convention) or identifiers that act as placeholders, filled in later by
+:func:`substitute`. The words in ``KEYWORDS`` are reserved.
 """
 
 from __future__ import annotations
@@ -35,22 +41,28 @@ __all__ = [
     "And",
     "Atom",
     "Const",
+    "Equiv",
     "Eventually",
     "F",
     "Formula",
     "G",
     "Implies",
     "LTLSyntaxError",
+    "M",
     "Next",
     "Not",
     "Or",
     "R",
     "Release",
+    "StrongRelease",
     "U",
     "Until",
+    "W",
     "WX",
     "WeakNext",
+    "WeakUntil",
     "X",
+    "Xor",
     "atoms",
     "conj",
     "disj",
@@ -64,7 +76,9 @@ __all__ = [
     "theta",
 ]
 
-KEYWORDS = frozenset({"X", "WX", "N", "G", "F", "U", "R", "true", "false"})
+KEYWORDS = frozenset({"X", "WX", "N", "G", "F", "U", "R", "V", "W", "M", "xor", "true", "false",
+                      "last"})
+_CONSTANTS = {"true": True, "false": False}  # also 1 and 0; any case, as in Spot and ltlf2dfa
 _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
@@ -73,7 +87,8 @@ _IDENT = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 
 
 class Formula:
-    """Base class of all LTLf nodes; provides ``&``, ``|``, ``~``, ``>>`` and canonical ``str``.
+    """Base class of all LTLf nodes; provides ``&``, ``|``, ``^``, ``~``, ``>>`` and canonical
+    ``str``.
 
     Python's precedence is not LTL's: ``>>`` binds tighter than ``&`` and ``|``, so write
     ``(a & b) >> c``.
@@ -86,6 +101,9 @@ class Formula:
 
     def __or__(self, other: Formula) -> Formula:
         return Or((self, other)) if isinstance(other, Formula) else NotImplemented
+
+    def __xor__(self, other: Formula) -> Formula:
+        return Xor(self, other) if isinstance(other, Formula) else NotImplemented
 
     def __invert__(self) -> Formula:
         return Not(self)
@@ -173,6 +191,31 @@ class Implies(Formula):
 
     lhs: Formula
     rhs: Formula
+    keyword: ClassVar[str] = "->"
+
+    def __post_init__(self) -> None:
+        _check(self.lhs, self.rhs)
+
+
+@dataclass(frozen=True, slots=True)
+class Equiv(Formula):
+    """Equivalence ``lhs <-> rhs``."""
+
+    lhs: Formula
+    rhs: Formula
+    keyword: ClassVar[str] = "<->"
+
+    def __post_init__(self) -> None:
+        _check(self.lhs, self.rhs)
+
+
+@dataclass(frozen=True, slots=True)
+class Xor(Formula):
+    """Exclusive or ``lhs xor rhs``: exactly one of the two holds."""
+
+    lhs: Formula
+    rhs: Formula
+    keyword: ClassVar[str] = "xor"
 
     def __post_init__(self) -> None:
         _check(self.lhs, self.rhs)
@@ -246,8 +289,39 @@ class Release(Formula):
         _check(self.lhs, self.rhs)
 
 
+@dataclass(frozen=True, slots=True)
+class WeakUntil(Formula):
+    """``lhs W rhs``: lhs holds until rhs does, or to the last step if rhs never does."""
+
+    lhs: Formula
+    rhs: Formula
+    keyword: ClassVar[str] = "W"
+
+    def __post_init__(self) -> None:
+        _check(self.lhs, self.rhs)
+
+
+@dataclass(frozen=True, slots=True)
+class StrongRelease(Formula):
+    """``lhs M rhs``: rhs holds up to and including a step where lhs holds, and there is one."""
+
+    lhs: Formula
+    rhs: Formula
+    keyword: ClassVar[str] = "M"
+
+    def __post_init__(self) -> None:
+        _check(self.lhs, self.rhs)
+
+
 def _is_name(name: object) -> bool:
-    return isinstance(name, str) and bool(_IDENT.fullmatch(name)) and name not in KEYWORDS
+    return (isinstance(name, str) and bool(_IDENT.fullmatch(name)) and name not in KEYWORDS
+            and name.lower() not in _CONSTANTS and name.lower() != "last")
+
+
+def _needs_quotes(name: str) -> bool:
+    """Whether an atom's name would read as a unary F, G or X touching the rest (Spot's rule:
+    ``Xa`` is ``X a``; ``X1`` is an atom)."""
+    return name[0] in "FGX" and len(name) > 1 and not name[1].isdigit()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -287,6 +361,16 @@ def R(a: Formula, b: Formula) -> Formula:
     return Release(a, b)
 
 
+def W(a: Formula, b: Formula) -> Formula:
+    """``a W b`` (weak until)."""
+    return WeakUntil(a, b)
+
+
+def M(a: Formula, b: Formula) -> Formula:
+    """``a M b`` (strong release)."""
+    return StrongRelease(a, b)
+
+
 def eta(i: int | str, j: int | str) -> Atom:
     """Grasp atom ``eta[i,j]``: arm i holds object j (1-based, or placeholders)."""
     return Atom("eta", (i, j))
@@ -312,19 +396,22 @@ def disj(fs: Iterable[Formula]) -> Formula:
 # --------------------------------------------------------------------------------------------------
 # Printer
 
-# Binding strength: a child is parenthesized when it binds more loosely than its slot requires.
-_IMPLIES, _OR, _AND, _UNTIL, _UNARY, _ATOM = range(1, 7)
+# Binding strength (Spot's): a child is parenthesized when it binds more loosely than its slot
+# requires.
+_IMPLIES, _OR, _XOR, _AND, _UNTIL, _UNARY, _ATOM = range(1, 8)
 
 
 def _prec(f: Formula) -> int:
     match f:
-        case Implies():
+        case Implies() | Equiv():
             return _IMPLIES
         case Or():
             return _OR
+        case Xor():
+            return _XOR
         case And():
             return _AND
-        case Until() | Release():
+        case Until() | Release() | WeakUntil() | StrongRelease():
             return _UNTIL
         case Not() | Next() | WeakNext() | Always() | Eventually():
             return _UNARY
@@ -339,6 +426,7 @@ def _to_text(f: Formula, min_prec: int) -> str:
             text = "true" if value else "false"
         case Atom(name, index):
             text = f"{name}[{','.join(map(str, index))}]" if index else name
+            text = f'"{text}"' if _needs_quotes(name) else text
         case Not(arg):
             text = "!" + _to_text(arg, _UNARY)
         case Next(arg) | WeakNext(arg) | Always(arg) | Eventually(arg):
@@ -348,9 +436,12 @@ def _to_text(f: Formula, min_prec: int) -> str:
             text = " & ".join(_to_text(a, _AND + 1) for a in args)
         case Or(args):
             text = " | ".join(_to_text(a, _OR + 1) for a in args)
-        case Implies(lhs, rhs):  # right-associative
-            text = f"{_to_text(lhs, _IMPLIES + 1)} -> {_to_text(rhs, _IMPLIES)}"
-        case Until(lhs, rhs) | Release(lhs, rhs):  # right-associative
+        case Implies(lhs, rhs) | Equiv(lhs, rhs):  # right-associative
+            text = f"{_to_text(lhs, _IMPLIES + 1)} {f.keyword} {_to_text(rhs, _IMPLIES)}"
+        case Xor(lhs, rhs):  # left-associative
+            text = f"{_to_text(lhs, _XOR)} xor {_to_text(rhs, _XOR + 1)}"
+        case Until(lhs, rhs) | Release(lhs, rhs) | WeakUntil(lhs, rhs) | StrongRelease(lhs, rhs):
+            # right-associative
             text = f"{_to_text(lhs, _UNTIL + 1)} {f.keyword} {_to_text(rhs, _UNTIL)}"
         case _:
             raise TypeError(f"not a Formula: {f!r}")
@@ -381,12 +472,20 @@ class LTLSyntaxError(ValueError):
 
 @dataclass(frozen=True, slots=True)
 class _Token:
-    kind: str  # "word", "int", "end", or the symbol itself
-    text: str
+    kind: str  # "word", "int", "quoted", "end", a constant, or the operator's canonical spelling
+    text: str  # as written
     pos: int
 
 
-_TOKEN = re.compile(r"(?P<word>[A-Za-z_][A-Za-z0-9_]*)|(?P<int>[0-9]+)|(?P<sym>->|[()\[\],&|!~])")
+_WORD = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_INT = re.compile(r"[0-9]+")
+_QUOTED = re.compile(r'"[^"]*"')
+_SYMBOL = re.compile(r"<-->|<->|<=>|-->|->|=>|<>|\[\]|&&|\|\||/\\|\\/|\.\.|[()\[\],&|!~^:$]")
+# Spot's and ltlf2dfa's other spellings of an operator → ours.
+_CANONICAL = {"=>": "->", "-->": "->", "<=>": "<->", "<-->": "<->", "&&": "&", "/\\": "&",
+              "||": "|", "\\/": "|", "^": "xor", "~": "!", "[]": "G", "<>": "F", "V": "R",
+              "N": "WX"}
+_QUOTED_ATOM = re.compile(r"\s*([A-Za-z_]\w*)\s*(?:\[\s*(\w+(?:\s*,\s*\w+)*)\s*\])?\s*")
 
 
 def _tokenize(text: str) -> list[_Token]:
@@ -397,23 +496,64 @@ def _tokenize(text: str) -> list[_Token]:
             pos += 1
         if pos == len(text):
             return [*tokens, _Token("end", "", pos)]
-        m = _TOKEN.match(text, pos)
-        if m is None:
+        if m := _WORD.match(text, pos):
+            word, kind = m[0], "word"
+            if word.lower() in (*_CONSTANTS, "last"):
+                kind = word.lower()
+            elif word in KEYWORDS:
+                kind = _CANONICAL.get(word, word)
+            elif _needs_quotes(word):  # Spot's GFa: the operator, then the rest from pos + 1
+                word = kind = word[0]
+        elif m := _INT.match(text, pos):
+            word, kind = m[0], "int"
+        elif m := _QUOTED.match(text, pos):
+            word, kind = m[0], "quoted"
+        elif m := _SYMBOL.match(text, pos):
+            word = m[0]
+            kind = _CANONICAL.get(word, word)
+        elif text[pos] == '"':
+            raise LTLSyntaxError("unclosed '\"'", text, pos)
+        else:
             raise LTLSyntaxError(f"unexpected character {text[pos]!r}", text, pos)
-        kind = m.lastgroup or ""
-        tokens.append(_Token(m[0] if kind == "sym" else kind, m[0], pos))
-        pos = m.end()
+        tokens.append(_Token(kind, word, pos))
+        pos += len(word)
 
 
 _UNARY_OPS: dict[str, Callable[[Formula], Formula]] = {
     "!": Not,
-    "~": Not,
     "X": Next,
     "WX": WeakNext,
-    "N": WeakNext,
     "G": Always,
     "F": Eventually,
 }
+_BINARY_OPS: dict[str, Callable[[Formula, Formula], Formula]] = {
+    "->": Implies,
+    "<->": Equiv,
+    "U": Until,
+    "R": Release,
+    "W": WeakUntil,
+    "M": StrongRelease,
+}
+
+
+def _nest(wrap: Callable[[Formula], Formula], n: int, f: Formula) -> Formula:
+    for _ in range(n):
+        f = wrap(f)
+    return f
+
+
+def _bounded(op: str, n: int, m: int | None, strong: bool, f: Formula) -> Formula:
+    """Spot's ``F[n:m] f`` (f at some step k+n..k+m, which must exist) and ``G[n:m] f`` (f at
+    every step k+n..k+m that exists; ``G[n:m!]``: and they must exist); m = None is unbounded."""
+    eventually = op == "F"
+    step = Next if eventually or strong else WeakNext
+    if m is None:
+        body = (Eventually if eventually else Always)(f)
+    else:
+        body = f
+        for _ in range(m - n):
+            body = (Or if eventually else And)((f, step(body)))
+    return _nest(step, n, body)
 
 
 class _Parser:
@@ -434,17 +574,17 @@ class _Parser:
         found = "end of input" if tok.kind == "end" else repr(tok.text)
         return LTLSyntaxError(f"expected {expected} but found {found}", self.text, tok.pos)
 
-    def accept(self, *texts: str) -> _Token | None:
+    def accept(self, *kinds: str) -> _Token | None:
         tok = self.tok
-        if tok.kind != "end" and tok.text in texts:
+        if tok.kind in kinds:
             self.i += 1
             return tok
         return None
 
-    def expect(self, text: str) -> _Token:
-        tok = self.accept(text)
+    def expect(self, kind: str) -> _Token:
+        tok = self.accept(kind)
         if tok is None:
-            raise self.error(repr(text))
+            raise self.error(repr(kind))
         return tok
 
     def formula(self) -> Formula:
@@ -456,26 +596,35 @@ class _Parser:
             raise self.error(what)
         return f
 
-    def deeper(self, tok: _Token, parse: Callable[[], Formula]) -> Formula:
-        """``parse()`` one level of nesting deeper; past ``MAX_DEPTH`` a syntax error at ``tok``
+    def deeper(self, tok: _Token, parse: Callable[[], Formula], levels: int = 1) -> Formula:
+        """``parse()`` ``levels`` of nesting deeper; past ``MAX_DEPTH`` a syntax error at ``tok``
         (the recursion would otherwise end in a RecursionError)."""
-        self.depth += 1
+        self.depth += levels
         if self.depth > MAX_DEPTH:
             raise LTLSyntaxError(f"nested deeper than {MAX_DEPTH} levels", self.text, tok.pos)
         f = parse()
-        self.depth -= 1
+        self.depth -= levels
         return f
 
     def implies(self) -> Formula:
         lhs = self.disjunction()
-        op = self.accept("->")
-        return Implies(lhs, self.deeper(op, self.implies)) if op else lhs
+        op = self.accept("->", "<->")
+        return _BINARY_OPS[op.kind](lhs, self.deeper(op, self.implies)) if op else lhs
 
     def disjunction(self) -> Formula:
-        args = [self.conjunction()]
+        args = [self.exclusive()]
         while self.accept("|"):
-            args.append(self.conjunction())
+            args.append(self.exclusive())
         return args[0] if len(args) == 1 else Or(tuple(args))
+
+    def exclusive(self) -> Formula:
+        f = self.conjunction()
+        depth = self.depth
+        while op := self.accept("xor"):  # left-associative: each one nests the chain deeper
+            f = Xor(f, self.deeper(op, self.conjunction))
+            self.depth += 1
+        self.depth = depth
+        return f
 
     def conjunction(self) -> Formula:
         args = [self.binary_temporal()]
@@ -485,14 +634,52 @@ class _Parser:
 
     def binary_temporal(self) -> Formula:
         lhs = self.unary()
-        op = self.accept("U", "R")
-        if op is None:
-            return lhs
-        return (Until if op.text == "U" else Release)(lhs, self.deeper(op, self.binary_temporal))
+        op = self.accept("U", "R", "W", "M")
+        return _BINARY_OPS[op.kind](lhs, self.deeper(op, self.binary_temporal)) if op else lhs
 
     def unary(self) -> Formula:
         op = self.accept(*_UNARY_OPS)
-        return _UNARY_OPS[op.text](self.deeper(op, self.unary)) if op else self.primary()
+        if op is None:
+            return self.primary()
+        if op.text in ("X", "F", "G") and self.tok.kind == "[":
+            wrap, levels = self.bounds(op)
+            return wrap(self.deeper(op, self.unary, levels))
+        return _UNARY_OPS[op.kind](self.deeper(op, self.unary))
+
+    def bounds(self, op: _Token) -> tuple[Callable[[Formula], Formula], int]:
+        """Spot's ``X[!]``, ``X[n]``, ``F[n:m]``, ``G[n:m]`` (also ``n..m``, ``n,m``; m may be ``$``
+        or ``inf`` or left out: unbounded; a ``!`` before ``]`` asks for strong nexts): the
+        expansion and the levels of nesting it counts for."""
+        self.expect("[")
+        if op.kind == "X":
+            n = 1 if self.tok.kind == "!" else self.bound()
+            self.accept("!")  # X[n!] = X[n]: our X is strong
+            self.expect("]")
+            return (lambda f: _nest(Next, n, f)), max(n, 1)
+        n = self.bound()
+        if not self.accept(":", "..", ","):
+            raise self.error(f"':' between the bounds of {op.kind}[n:m]")
+        m = None
+        if not (self.accept("$") or self.accept_word("inf") or self.tok.kind in ("!", "]")):
+            tok = self.tok
+            m = self.bound()
+            if m < n:
+                raise LTLSyntaxError(f"empty range {op.kind}[{n}:{m}]", self.text, tok.pos)
+        strong = self.accept("!") is not None
+        self.expect("]")
+        return (lambda f: _bounded(op.kind, n, m, strong, f)), max(n + 1 if m is None else m, 1)
+
+    def bound(self) -> int:
+        tok = self.tok
+        if tok.kind != "int":
+            raise self.error("a bound (an integer)")
+        if int(tok.text) > MAX_DEPTH:
+            raise LTLSyntaxError(f"bound above {MAX_DEPTH}", self.text, tok.pos)
+        self.i += 1
+        return int(tok.text)
+
+    def accept_word(self, word: str) -> _Token | None:
+        return self.accept("word") if self.tok.kind == "word" and self.tok.text == word else None
 
     def primary(self) -> Formula:
         tok = self.tok
@@ -500,14 +687,22 @@ class _Parser:
             f = self.deeper(tok, self.implies)
             self.expect(")")
             return f
-        if self.accept("true"):
-            return TRUE
-        if self.accept("false"):
-            return FALSE
-        if tok.kind != "word" or tok.text in KEYWORDS:
+        if self.accept(*_CONSTANTS):
+            return Const(_CONSTANTS[tok.kind])
+        if tok.kind == "int" and tok.text in ("0", "1"):  # Spot prints the constants so
+            self.i += 1
+            return Const(tok.text == "1")
+        if self.accept("last"):  # ltlf2dfa's and flloat's: k is the last step
+            return WeakNext(FALSE)
+        if self.accept("quoted"):
+            return self.quoted(tok)
+        if tok.kind != "word":
             raise self.error("a formula")
         self.i += 1
         index: list[int | str] = []
+        if self.tok.text == "[]" and self.tok.pos == tok.pos + len(tok.text):  # eta[]
+            raise LTLSyntaxError("expected an index (integer or identifier) but found ']'",
+                                 self.text, self.tok.pos + 1)
         if self.accept("["):
             index.append(self.index_entry())
             while self.accept(","):
@@ -522,6 +717,18 @@ class _Parser:
         self.i += 1
         return int(tok.text) if tok.kind == "int" else tok.text
 
+    def quoted(self, tok: _Token) -> Atom:
+        """A double-quoted atom, as Spot writes one whose name is not a plain identifier."""
+        m = _QUOTED_ATOM.fullmatch(tok.text[1:-1])
+        try:
+            if m is None:
+                raise ValueError("not an atom")
+            entries = re.split(r"\s*,\s*", m[2]) if m[2] else []
+            return Atom(m[1], tuple(int(e) if e.isdigit() else e for e in entries))
+        except ValueError as err:
+            raise LTLSyntaxError(f"expected an atom name[index, ...] in quotes ({err})",
+                                 self.text, tok.pos) from None
+
 
 def parse(text: str) -> Formula:
     """Parse LTLf text (syntax in the module docstring); raises :class:`LTLSyntaxError`."""
@@ -533,10 +740,12 @@ def parse(text: str) -> Formula:
 
 
 def nnf(f: Formula) -> Formula:
-    """Negation normal form: no Implies, and Not only directly around an Atom.
+    """Negation normal form: no Implies, Equiv, Xor, WeakUntil or StrongRelease, and Not only
+    directly around an Atom: the operators the encoder knows.
 
     Uses the LTLf dualities ``!X a = WX !a``, ``!G a = F !a``, ``!(a U b) = !a R !b`` and their
-    converses, De Morgan, ``!!a = a`` and ``!true = false``.
+    converses, De Morgan, ``!!a = a``, ``!true = false``, and the definitions
+    ``a <-> b = (a & b) | (!a & !b)``, ``a W b = (a U b) | G a``, ``a M b = (a R b) & F a``.
     """
     return _nnf(f, False)
 
@@ -555,6 +764,16 @@ def _nnf(f: Formula, neg: bool) -> Formula:
             return (And if neg else Or)(tuple(_nnf(a, neg) for a in args))
         case Implies(lhs, rhs):
             return _nnf(Or((Not(lhs), rhs)), neg)
+        case Equiv(lhs, rhs) | Xor(lhs, rhs):  # xor is the negation of <->
+            same = isinstance(f, Equiv) != neg
+            return Or((And((_nnf(lhs, False), _nnf(rhs, not same))),
+                       And((_nnf(lhs, True), _nnf(rhs, same)))))
+        case WeakUntil(lhs, rhs) | StrongRelease(lhs, rhs):  # each the negation's dual of the other
+            # the left argument is the one repeated: a right-nested chain a W b W c stays linear
+            a, b = _nnf(lhs, neg), _nnf(rhs, neg)
+            if isinstance(f, WeakUntil) != neg:
+                return Or((Until(a, b), Always(a)))
+            return And((Release(a, b), Eventually(a)))
         case Next(arg):
             return (WeakNext if neg else Next)(_nnf(arg, neg))
         case WeakNext(arg):
@@ -581,9 +800,12 @@ def _map_atoms(f: Formula, fn: Callable[[Atom], Formula]) -> Formula:
             return type(f)(tuple(_map_atoms(a, fn) for a in args))
         case Not(a) | Next(a) | WeakNext(a) | Always(a) | Eventually(a):
             return type(f)(_map_atoms(a, fn))
-        case Implies(a, b) | Until(a, b) | Release(a, b):
-            return type(f)(_map_atoms(a, fn), _map_atoms(b, fn))
+        case _ if isinstance(f, _BINARY):
+            return type(f)(_map_atoms(f.lhs, fn), _map_atoms(f.rhs, fn))
     raise TypeError(f"not a Formula: {f!r}")
+
+
+_BINARY = (Implies, Equiv, Xor, Until, Release, WeakUntil, StrongRelease)
 
 
 def atoms(f: Formula) -> frozenset[Atom]:
@@ -599,17 +821,25 @@ def atoms(f: Formula) -> frozenset[Atom]:
 
 
 def size(f: Formula) -> int:
-    """The number of nodes of ``f`` (operators, atoms, constants)."""
-    count, stack = 0, [f]
+    """The number of nodes of ``f`` (operators, atoms, constants), with ``<->``, ``xor``, ``W``
+    and ``M`` counted as :func:`nnf` writes them for the encoder: three nodes, and each argument
+    that it repeats (both of ``<->`` and ``xor``, the left one of ``W`` and ``M``) twice."""
+    count, stack = 0, [(f, 1)]
     while stack:
-        g = stack.pop()
-        count += 1
+        g, n = stack.pop()
+        count += n
         if isinstance(g, And | Or):
-            stack += g.args
-        elif isinstance(g, Until | Release | Implies):
-            stack += (g.lhs, g.rhs)
+            stack += [(a, n) for a in g.args]
+        elif isinstance(g, Equiv | Xor):
+            count += 2 * n
+            stack += [(g.lhs, 2 * n), (g.rhs, 2 * n)]
+        elif isinstance(g, WeakUntil | StrongRelease):
+            count += 2 * n
+            stack += [(g.lhs, 2 * n), (g.rhs, n)]
+        elif isinstance(g, _BINARY):
+            stack += [(g.lhs, n), (g.rhs, n)]
         elif not isinstance(g, Atom | Const):
-            stack.append(g.arg)
+            stack.append((g.arg, n))
     return count
 
 
@@ -638,7 +868,8 @@ def partial(f: Formula, known: dict[Atom, bool]) -> Formula:
 
     Only simplifications valid at every step of an LTLf trace are made: ``X TRUE`` is not TRUE
     (strong next is false at the last step), everything else folds as in propositional logic
-    (``G TRUE``, ``F TRUE``, ``WX TRUE``, ``a U TRUE``, ``a R TRUE`` are TRUE; duals for FALSE)."""
+    (``G TRUE``, ``F TRUE``, ``WX TRUE``, ``a U TRUE``, ``a R TRUE``, ``a W TRUE``, ``TRUE W b``
+    are TRUE; duals for FALSE)."""
     match f:
         case Atom():
             return Const(known[f]) if f in known else f
@@ -674,5 +905,19 @@ def partial(f: Formula, known: dict[Atom, bool]) -> Formula:
             a, b = partial(a, known), partial(b, known)
             if isinstance(b, Const):
                 return b
+            return type(f)(a, b)
+        case WeakUntil(a, b) | StrongRelease(a, b):
+            a, b = partial(a, known), partial(b, known)
+            weak = isinstance(f, WeakUntil)
+            if Const(weak) in (a, b):  # true W b = a W true = true, false M b = a M false = false
+                return Const(weak)
+            if not isinstance(b, Const):
+                return type(f)(a, b)
+            # a W false = G a, a M true = F a
+            return a if isinstance(a, Const) else (Always if weak else Eventually)(a)
+        case Equiv(a, b) | Xor(a, b):
+            a, b = partial(a, known), partial(b, known)
+            if isinstance(a, Const) and isinstance(b, Const):
+                return Const((a == b) == isinstance(f, Equiv))
             return type(f)(a, b)
     raise TypeError(f"not a Formula: {f!r}")

@@ -9,6 +9,7 @@ from dualarm_mpc.ltl import (
     And,
     Atom,
     Const,
+    Equiv,
     Eventually,
     Formula,
     Implies,
@@ -16,12 +17,15 @@ from dualarm_mpc.ltl import (
     Not,
     Or,
     Release,
+    StrongRelease,
     Until,
     WeakNext,
+    WeakUntil,
+    Xor,
 )
 
 UNARY = (Not, Next, WeakNext, Always, Eventually)
-BINARY = (Implies, Until, Release)
+BINARY = (Implies, Equiv, Xor, Until, Release, WeakUntil, StrongRelease)
 
 
 def formulas(atoms: list[Atom], max_leaves: int = 8) -> st.SearchStrategy[Formula]:
