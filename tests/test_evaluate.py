@@ -7,7 +7,24 @@ from hypothesis import given, settings
 from strategies import formulas, traces
 
 from dualarm_mpc.evaluate import evaluate, truth_table
-from dualarm_mpc.ltl import FALSE, TRUE, WX, Atom, F, G, R, U, X, atoms, eta, parse, theta
+from dualarm_mpc.ltl import (
+    FALSE,
+    TRUE,
+    WX,
+    Atom,
+    Equiv,
+    F,
+    G,
+    M,
+    R,
+    U,
+    W,
+    X,
+    atoms,
+    eta,
+    parse,
+    theta,
+)
 
 a, b = Atom("a"), Atom("b")
 FAST = settings(max_examples=200, deadline=None)
@@ -46,6 +63,17 @@ def tt(text: str, **values: str) -> str:
         ("true U a", "1110"),  # = F a
         ("F G a", "0000"),  # = a at T
         ("F G !a", "1111"),
+        ("a <-> b", "0101"),
+        ("a xor b", "1010"),
+        ("a W b", "1100"),  # a U b, or a to the last step: from step 2 neither
+        ("b W a", "1110"),
+        ("!a W b", "1101"),  # no b after step 1, but !a from step 3 to the end
+        ("a M b", "1100"),  # b up to and including a step with a (step 1), which must come
+        ("b M a", "0100"),
+        ("true M b", "1100"),  # = b
+        ("a M true", "1110"),  # = F a
+        ("false W b", "1100"),  # = b
+        ("a W false", "0000"),  # = G a
     ],
 )
 def test_operators(text: str, expected: str) -> None:
@@ -83,6 +111,10 @@ def test_edge_cases(text: str, a_values: str, b_values: str, expected: str) -> N
         ("a R b", "0"),
         ("a U a", "1"),
         ("b R a", "1"),
+        ("b W a", "1"),
+        ("a W b", "1"),  # a to the last step (the only one)
+        ("b M a", "0"),
+        ("a M a", "1"),
     ],
 )
 def test_single_step_trace(text: str, expected: str) -> None:
@@ -110,6 +142,13 @@ def test_dualities_and_expansions(f, trace) -> None:
     assert table(R(FALSE, f), trace, horizon) == table(G(f), trace, horizon)
     assert table(U(f, g), trace, horizon) == table(g | (f & X(U(f, g))), trace, horizon)
     assert table(R(f, g), trace, horizon) == table(g & (f | WX(R(f, g))), trace, horizon)
+    assert table(W(f, g), trace, horizon) == table(U(f, g) | G(f), trace, horizon)
+    assert table(M(f, g), trace, horizon) == table(U(g, f & g), trace, horizon)
+    assert table(~W(f, g), trace, horizon) == table(M(~f, ~g), trace, horizon)
+    assert table(W(f, g), trace, horizon) == table(g | (f & WX(W(f, g))), trace, horizon)
+    assert table(M(f, g), trace, horizon) == table(g & (f | X(M(f, g))), trace, horizon)
+    assert table(f ^ g, trace, horizon) == table(~Equiv(f, g), trace, horizon)
+    assert table(Equiv(f, g), trace, horizon) == table((f >> g) & (g >> f), trace, horizon)
 
 
 def test_evaluate_at_k_and_callable_trace() -> None:

@@ -1,0 +1,139 @@
+"""The evaluator against a peer LTLf implementation on random formulas and finite traces.
+
+The peer is flloat (the LTLf library of the ltlf2dfa authors; ltlf2dfa itself needs the MONA
+binary, Spot is not on the package index), which evaluates a formula on a trace directly from De
+Giacomo & Vardi's semantics. It reads ltlf2dfa's syntax: lower-case atoms and
+``! & | -> <-> X WX G F U R true false last``. Our W, M and xor it has not: they are given to it by
+their textbook definitions (Spot's), ``a W b = (a U b) | G a``, ``a M b = b U (a & b)`` and
+``a xor b = !(a <-> b)``, not by the rewriting ``ltl.nnf`` uses, so they are checked too. Every
+subformula is parenthesized: flloat's precedence is not Spot's (docs/ltl.md). Traces have at least
+one step (a horizon is k = 0..T, T ≥ 0); on the empty trace, which never arises here, LTLf tools
+differ.
+"""
+
+from __future__ import annotations
+
+import itertools
+import random
+
+import pytest
+from strategies import BINARY as BINARY_NODES
+from strategies import UNARY as UNARY_NODES
+
+from dualarm_mpc.evaluate import truth_table
+from dualarm_mpc.ltl import (
+    Always,
+    And,
+    Atom,
+    Const,
+    Equiv,
+    Eventually,
+    Formula,
+    Implies,
+    Next,
+    Not,
+    Or,
+    Release,
+    StrongRelease,
+    Until,
+    WeakNext,
+    WeakUntil,
+    Xor,
+    eta,
+    parse,
+    theta,
+)
+
+LTLfParser = pytest.importorskip("flloat.parser.ltlf").LTLfParser
+
+ATOMS = [eta(1, 1), eta(2, 1), eta(1, 2), theta(1), theta(2)]
+PEER_PARSER = LTLfParser()
+UNARY = {Not: "!", Next: "X", WeakNext: "WX", Always: "G", Eventually: "F"}
+BINARY = {And: "&", Or: "|", Implies: "->", Equiv: "<->", Until: "U", Release: "R"}
+
+
+def peer_name(atom: Atom) -> str:
+    """``eta[1,2]`` as a flloat proposition: ``eta_1_2``."""
+    return "_".join([atom.name, *map(str, atom.index)])
+
+
+def peer_text(f: Formula, name=peer_name) -> str:
+    """``f`` in ltlf2dfa's syntax, each subformula in parentheses, atoms written by ``name``."""
+    match f:
+        case Const(value):
+            return "true" if value else "false"
+        case Atom():
+            return name(f)
+        case WeakUntil(a, b):
+            return peer_text(Or((Until(a, b), Always(a))), name)
+        case StrongRelease(a, b):
+            return peer_text(Until(b, And((a, b))), name)
+        case Xor(a, b):
+            return peer_text(Not(Equiv(a, b)), name)
+        case And(args) | Or(args):
+            return "(" + f" {BINARY[type(f)]} ".join(peer_text(a, name) for a in args) + ")"
+        case Implies(a, b) | Equiv(a, b) | Until(a, b) | Release(a, b):
+            return f"({peer_text(a, name)} {BINARY[type(f)]} {peer_text(b, name)})"
+    return f"{UNARY[type(f)]}({peer_text(f.arg, name)})"
+
+
+def peer_table(peer, trace: dict[Atom, list[bool]], horizon: int) -> list[bool]:
+    """The truth of flloat's formula ``peer`` at each step k = 0..horizon of ``trace``."""
+    steps = [{peer_name(a): v[k] for a, v in trace.items()} for k in range(horizon + 1)]
+    return [bool(peer.truth(steps, k)) for k in range(horizon + 1)]
+
+
+def random_formula(rnd: random.Random, leaves: int) -> Formula:
+    """A formula with ``leaves`` atoms or constants and any operators (``strategies``' own)."""
+    if rnd.random() < 0.3:
+        return rnd.choice(UNARY_NODES)(random_formula(rnd, leaves))
+    if leaves == 1:
+        return rnd.choice(ATOMS) if rnd.random() < 0.9 else Const(rnd.random() < 0.5)
+    split = rnd.randint(1, leaves - 1)
+    lhs, rhs = random_formula(rnd, split), random_formula(rnd, leaves - split)
+    if rnd.random() < 0.25:
+        return rnd.choice((And, Or))((lhs, rhs))
+    return rnd.choice(BINARY_NODES)(lhs, rhs)
+
+
+def test_the_evaluator_agrees_with_flloat() -> None:
+    """1000 distinct random formulas of 1 to 10 leaves with every operator, each on three random
+    traces of 1 to 6 steps, compared at every step; the same formula written in ltlf2dfa's syntax
+    over our atoms parses to one with the same truth. Seeded: the same formulas in every run."""
+    rnd = random.Random(41)
+    seen: set[Formula] = set()
+    while len(seen) < 1000:
+        f = random_formula(rnd, rnd.randint(1, 10))
+        if f in seen:
+            continue
+        seen.add(f)
+        text = peer_text(f)
+        peer, ours = PEER_PARSER(text), parse(peer_text(f, str))
+        for horizon in rnd.choices(range(6), k=3):
+            trace = {a: [rnd.random() < 0.5 for _ in range(horizon + 1)] for a in ATOMS}
+            table = truth_table(f, trace, horizon)
+            assert table == peer_table(peer, trace, horizon), (text, horizon, trace)
+            assert truth_table(ours, trace, horizon) == table, (text, horizon, trace)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "G(a -> WX last)",  # last: true only at the last step
+        "a U last",
+        "!last & X true",
+        "F(last & a)",  # a at the last step, = F G a
+        "WX(false) <-> last",
+        "a R (b | last)",
+        "G(a -> X(!a)) & F(b)",
+    ],
+)
+def test_ltlf2dfa_text_means_the_same_here(text: str) -> None:
+    """Formulas in ltlf2dfa's own spelling (``last`` included), read by both parsers, on every
+    trace over a, b of 1 to 4 steps."""
+    a, b = Atom("a"), Atom("b")
+    ours, peer = parse(text), PEER_PARSER(text)
+    for horizon in range(4):
+        for bits in itertools.product((False, True), repeat=2 * (horizon + 1)):
+            trace = {a: list(bits[:horizon + 1]), b: list(bits[horizon + 1:])}
+            assert truth_table(ours, trace, horizon) == peer_table(peer, trace, horizon), bits
