@@ -23,14 +23,20 @@ from dualarm_mpc.ltl import (
     Always,
     And,
     Atom,
+    Const,
+    Equiv,
     Eventually,
     Formula,
+    Implies,
     Next,
     Not,
     Or,
     Release,
+    StrongRelease,
     Until,
     WeakNext,
+    WeakUntil,
+    Xor,
     atoms,
     conj,
     disj,
@@ -263,7 +269,7 @@ def check_rule(f: Formula, scenario: Scenario, where: str) -> int:
         problem = _atom_problem(atom, n)
         if problem:
             raise ScenarioError(f"{where}: {problem}")
-    for atom in sorted(negated_atoms(nnf(f)), key=str):
+    for atom in sorted(negated_atoms(f), key=str):
         if atom.name == "theta":
             raise ScenarioError(
                 f"{where}: {atom} appears negated: a goal atom is linked to the state "
@@ -307,19 +313,32 @@ def _atom_problem(atom: Atom, n: int) -> str:
 
 
 def negated_atoms(f: Formula) -> set[Atom]:
-    """The atoms under a negation in ``f``, a formula in negation normal form."""
+    """The atoms under a negation in ``nnf(f)``, found without writing it (each nested ``<->``
+    or ``xor`` doubles it): the polarity of each occurrence, each subformula visited at most
+    once per polarity."""
     out: set[Atom] = set()
-    stack = [f]
+    seen: set[tuple[int, bool]] = set()
+    stack = [(f, False)]
     while stack:
-        g = stack.pop()
-        if isinstance(g, Not):
-            out.add(g.arg)
-        elif isinstance(g, Next | WeakNext | Always | Eventually):
-            stack.append(g.arg)
-        elif isinstance(g, Until | Release):
-            stack += [g.lhs, g.rhs]
+        g, negated = stack.pop()
+        if (id(g), negated) in seen:
+            continue
+        seen.add((id(g), negated))
+        if isinstance(g, Atom):
+            if negated:
+                out.add(g)
+        elif isinstance(g, Not):
+            stack.append((g.arg, not negated))
+        elif isinstance(g, Implies):
+            stack += [(g.lhs, not negated), (g.rhs, negated)]
+        elif isinstance(g, Equiv | Xor):  # (a & b) | (!a & !b): each argument both ways
+            stack += [(x, p) for x in (g.lhs, g.rhs) for p in (False, True)]
         elif isinstance(g, And | Or):
-            stack += list(g.args)
+            stack += [(x, negated) for x in g.args]
+        elif isinstance(g, Until | Release | WeakUntil | StrongRelease):
+            stack += [(g.lhs, negated), (g.rhs, negated)]
+        elif not isinstance(g, Const):
+            stack.append((g.arg, negated))
     return out
 
 

@@ -4,9 +4,12 @@ with its field before any solve (issue 7), the paper's rules and sound user rule
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from strategies import formulas
 
+from dualarm_mpc.ltl import eta, nnf, theta
 from dualarm_mpc.scenario import ScenarioError, load_scenario
-from dualarm_mpc.spec import MAX_RULE_INSTANCES, rule_formulas, specification
+from dualarm_mpc.spec import MAX_RULE_INSTANCES, negated_atoms, rule_formulas, specification
 
 
 def _rules(rules: list[str], **overrides):
@@ -66,3 +69,27 @@ def test_sound_user_rules_pass_and_expand() -> None:
     s = load_scenario("table1_vc", {"rules": ["G(eta[i,j] -> WX !eta[i,l])"]})
     spec = specification(s, [0, 1, 2], rules=named)
     assert len(spec.rules) == 5
+
+
+def test_a_rule_in_spots_or_ltlf2dfas_syntax_is_the_same_rule() -> None:
+    ours, spot, ltlf2dfa = (_rules([text])[-1][1] for text in [
+        "G(eta[i,j] -> WX !eta[i,l])", "[](eta[i,j] => N ~eta[i,l])",
+        "G(eta[i,j] -> WX(!(eta[i,l])))"])
+    assert ours == spot == ltlf2dfa
+
+
+def test_nested_equivalences_count_as_their_negation_normal_form() -> None:
+    """nnf writes each argument of <-> twice: 20 nested ones are 2^20 copies of the innermost,
+    refused before the encoder would build them."""
+    rule = "G(" + "(eta[1,1] <-> " * 20 + "eta[2,1]" + ")" * 21
+    with pytest.raises(ScenarioError, match=r"^rules\[0\]: the rules up to this one expand to "
+                       r"[0-9,]+ formula nodes"):
+        _rules([rule])
+    _rules(["G(" + "(eta[1,1] <-> " * 5 + "eta[2,1]" + ")" * 6])
+
+
+@settings(max_examples=200, deadline=None)
+@given(formulas([eta(1, 1), eta(2, 1), theta(1)], max_leaves=10))
+def test_negated_atoms_are_those_under_a_not_in_the_negation_normal_form(f) -> None:
+    """In nnf(f) a Not stands only on an atom, so there the walk finds exactly those."""
+    assert negated_atoms(f) == negated_atoms(nnf(f))
