@@ -150,13 +150,30 @@ class Atom(Formula):
 
 
 @dataclass(frozen=True, slots=True)
-class Not(Formula):
-    """Negation ``!arg``."""
+class _Unary(Formula):
+    """A node with one argument."""
 
     arg: Formula
 
     def __post_init__(self) -> None:
         _check(self.arg)
+
+
+@dataclass(frozen=True, slots=True)
+class _Binary(Formula):
+    """A node with two arguments; ``keyword`` is its canonical spelling."""
+
+    lhs: Formula
+    rhs: Formula
+    keyword: ClassVar[str]
+
+    def __post_init__(self) -> None:
+        _check(self.lhs, self.rhs)
+
+
+@dataclass(frozen=True, slots=True)
+class Not(_Unary):
+    """Negation ``!arg``."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -186,131 +203,80 @@ class Or(Formula):
 
 
 @dataclass(frozen=True, slots=True)
-class Implies(Formula):
+class Implies(_Binary):
     """Implication ``lhs -> rhs``."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "->"
 
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
-
 
 @dataclass(frozen=True, slots=True)
-class Equiv(Formula):
+class Equiv(_Binary):
     """Equivalence ``lhs <-> rhs``."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "<->"
 
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
-
 
 @dataclass(frozen=True, slots=True)
-class Xor(Formula):
+class Xor(_Binary):
     """Exclusive or ``lhs xor rhs``: exactly one of the two holds."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "xor"
 
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
-
 
 @dataclass(frozen=True, slots=True)
-class Next(Formula):
+class Next(_Unary):
     """Strong next ``X arg``: false at the last step."""
 
-    arg: Formula
     keyword: ClassVar[str] = "X"
 
-    def __post_init__(self) -> None:
-        _check(self.arg)
-
 
 @dataclass(frozen=True, slots=True)
-class WeakNext(Formula):
+class WeakNext(_Unary):
     """Weak next ``WX arg`` (also written ``N arg``): true at the last step."""
 
-    arg: Formula
     keyword: ClassVar[str] = "WX"
 
-    def __post_init__(self) -> None:
-        _check(self.arg)
-
 
 @dataclass(frozen=True, slots=True)
-class Always(Formula):
+class Always(_Unary):
     """``G arg``: arg holds from now to the last step."""
 
-    arg: Formula
     keyword: ClassVar[str] = "G"
 
-    def __post_init__(self) -> None:
-        _check(self.arg)
-
 
 @dataclass(frozen=True, slots=True)
-class Eventually(Formula):
+class Eventually(_Unary):
     """``F arg``: arg holds at some step from now to the last."""
 
-    arg: Formula
     keyword: ClassVar[str] = "F"
 
-    def __post_init__(self) -> None:
-        _check(self.arg)
-
 
 @dataclass(frozen=True, slots=True)
-class Until(Formula):
+class Until(_Binary):
     """``lhs U rhs``: rhs holds at some step, and lhs at every step before it."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "U"
 
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
-
 
 @dataclass(frozen=True, slots=True)
-class Release(Formula):
+class Release(_Binary):
     """``lhs R rhs``: rhs holds up to and including the first step where lhs holds (if any)."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "R"
 
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
-
 
 @dataclass(frozen=True, slots=True)
-class WeakUntil(Formula):
+class WeakUntil(_Binary):
     """``lhs W rhs``: lhs holds until rhs does, or to the last step if rhs never does."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "W"
-
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
 
 
 @dataclass(frozen=True, slots=True)
-class StrongRelease(Formula):
+class StrongRelease(_Binary):
     """``lhs M rhs``: rhs holds up to and including a step where lhs holds, and there is one."""
 
-    lhs: Formula
-    rhs: Formula
     keyword: ClassVar[str] = "M"
-
-    def __post_init__(self) -> None:
-        _check(self.lhs, self.rhs)
 
 
 def _is_name(name: object) -> bool:
@@ -798,14 +764,11 @@ def _map_atoms(f: Formula, fn: Callable[[Atom], Formula]) -> Formula:
             return f
         case And(args) | Or(args):
             return type(f)(tuple(_map_atoms(a, fn) for a in args))
-        case Not(a) | Next(a) | WeakNext(a) | Always(a) | Eventually(a):
+        case _Unary(a):
             return type(f)(_map_atoms(a, fn))
-        case _ if isinstance(f, _BINARY):
-            return type(f)(_map_atoms(f.lhs, fn), _map_atoms(f.rhs, fn))
+        case _Binary(a, b):
+            return type(f)(_map_atoms(a, fn), _map_atoms(b, fn))
     raise TypeError(f"not a Formula: {f!r}")
-
-
-_BINARY = (Implies, Equiv, Xor, Until, Release, WeakUntil, StrongRelease)
 
 
 def atoms(f: Formula) -> frozenset[Atom]:
@@ -836,7 +799,7 @@ def size(f: Formula) -> int:
         elif isinstance(g, WeakUntil | StrongRelease):
             count += 2 * n
             stack += [(g.lhs, 2 * n), (g.rhs, n)]
-        elif isinstance(g, _BINARY):
+        elif isinstance(g, _Binary):
             stack += [(g.lhs, n), (g.rhs, n)]
         elif not isinstance(g, Atom | Const):
             stack.append((g.arg, n))

@@ -17,8 +17,7 @@ import itertools
 import random
 
 import pytest
-from strategies import BINARY as BINARY_NODES
-from strategies import UNARY as UNARY_NODES
+from strategies import BINARY, UNARY
 
 from dualarm_mpc.evaluate import truth_table
 from dualarm_mpc.ltl import (
@@ -27,16 +26,13 @@ from dualarm_mpc.ltl import (
     Atom,
     Const,
     Equiv,
-    Eventually,
     Formula,
     Implies,
-    Next,
     Not,
     Or,
     Release,
     StrongRelease,
     Until,
-    WeakNext,
     WeakUntil,
     Xor,
     eta,
@@ -48,8 +44,6 @@ LTLfParser = pytest.importorskip("flloat.parser.ltlf").LTLfParser
 
 ATOMS = [eta(1, 1), eta(2, 1), eta(1, 2), theta(1), theta(2)]
 PEER_PARSER = LTLfParser()
-UNARY = {Not: "!", Next: "X", WeakNext: "WX", Always: "G", Eventually: "F"}
-BINARY = {And: "&", Or: "|", Implies: "->", Equiv: "<->", Until: "U", Release: "R"}
 
 
 def peer_name(atom: Atom) -> str:
@@ -58,7 +52,8 @@ def peer_name(atom: Atom) -> str:
 
 
 def peer_text(f: Formula, name=peer_name) -> str:
-    """``f`` in ltlf2dfa's syntax, each subformula in parentheses, atoms written by ``name``."""
+    """``f`` in ltlf2dfa's syntax, each subformula in parentheses, atoms written by ``name``; the
+    other operators are spelt there as here (docs/ltl.md)."""
     match f:
         case Const(value):
             return "true" if value else "false"
@@ -70,11 +65,14 @@ def peer_text(f: Formula, name=peer_name) -> str:
             return peer_text(Until(b, And((a, b))), name)
         case Xor(a, b):
             return peer_text(Not(Equiv(a, b)), name)
+        case Not(a):
+            return f"!({peer_text(a, name)})"
         case And(args) | Or(args):
-            return "(" + f" {BINARY[type(f)]} ".join(peer_text(a, name) for a in args) + ")"
+            return "(" + (" & " if isinstance(f, And) else " | ").join(
+                peer_text(a, name) for a in args) + ")"
         case Implies(a, b) | Equiv(a, b) | Until(a, b) | Release(a, b):
-            return f"({peer_text(a, name)} {BINARY[type(f)]} {peer_text(b, name)})"
-    return f"{UNARY[type(f)]}({peer_text(f.arg, name)})"
+            return f"({peer_text(a, name)} {f.keyword} {peer_text(b, name)})"
+    return f"{f.keyword}({peer_text(f.arg, name)})"  # X WX G F
 
 
 def peer_table(peer, trace: dict[Atom, list[bool]], horizon: int) -> list[bool]:
@@ -86,14 +84,14 @@ def peer_table(peer, trace: dict[Atom, list[bool]], horizon: int) -> list[bool]:
 def random_formula(rnd: random.Random, leaves: int) -> Formula:
     """A formula with ``leaves`` atoms or constants and any operators (``strategies``' own)."""
     if rnd.random() < 0.3:
-        return rnd.choice(UNARY_NODES)(random_formula(rnd, leaves))
+        return rnd.choice(UNARY)(random_formula(rnd, leaves))
     if leaves == 1:
         return rnd.choice(ATOMS) if rnd.random() < 0.9 else Const(rnd.random() < 0.5)
     split = rnd.randint(1, leaves - 1)
     lhs, rhs = random_formula(rnd, split), random_formula(rnd, leaves - split)
     if rnd.random() < 0.25:
         return rnd.choice((And, Or))((lhs, rhs))
-    return rnd.choice(BINARY_NODES)(lhs, rhs)
+    return rnd.choice(BINARY)(lhs, rhs)
 
 
 def test_the_evaluator_agrees_with_flloat() -> None:
