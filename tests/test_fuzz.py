@@ -30,7 +30,11 @@ FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCh
 
 TOKENS = ["(", ")", "[", "]", ",", "&", "|", "!", "~", "->", "-", ">", "X", "WX", "N", "G", "F",
           "U", "R", "true", "false", "eta", "theta", "i", "j", "1", "2", "0", "99999999999999999",
-          " ", "\t", "\n", "$", "é", "\u00a0", "p", "eta[1,2]", "theta[j]"]
+          " ", "\t", "\n", "$", "é", "\u00a0", "p", "eta[1,2]", "theta[j]",
+          # Spot's and ltlf2dfa's spellings (docs/ltl.md)
+          "<->", "<=>", "=>", "-->", "xor", "^", "W", "M", "V", "[]", "<>", "&&", "||", "/\\",
+          "\\/", "X[!]", "X[2]", "F[1:3]", "G[0:$]", "F[2..", ":", "..", "!]", "last", "TRUE",
+          "GF", "Xa", '"', '"eta[1,2]"', '"Xa"']
 
 
 def _parses_or_syntax_error(text: str) -> None:

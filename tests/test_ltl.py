@@ -263,6 +263,7 @@ def test_spot_bounded_operators_and_other_sugar(text: str, expected: Formula) ->
         ('G "eta[1,3] & a', 2, "unclosed '\"'"),
         ('"G" U a', 0, "expected an atom name[index, ...] in quotes (invalid atom name 'G')"),
         ('"eta[1," U a', 0, "expected an atom name[index, ...] in quotes"),
+        ('"eta[\u0661]"', 0, "expected an atom name[index, ...] in quotes"),  # an Arabic 1
         ("a xor", 5, "expected a formula but found end of input"),
         ("a W M b", 4, "expected a formula but found 'M'"),
         ("X[2 a", 4, "expected ']' but found 'a'"),
