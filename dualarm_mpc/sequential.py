@@ -149,11 +149,16 @@ def witness(scenario: Scenario, state: State, spec: Specification,
     restricted = with_no_throw(spec)
     if restricted is None:
         return None
+    objects = list(spec.objects)
+    model = Model.from_scenario(scenario, objects)
+    cap = scenario.solver.max_horizon
+    if horizon_bound(model, state.select(objects), spec.m_o, frozenset(range(len(objects))),
+                     cap) > cap:
+        return None  # no route delivers m_o objects without a throw (§V-C's goals)
     try:
         res = first_plan(scenario, state, restricted, options)
     except PlanningError:
         return None
-    model = Model.from_scenario(scenario, list(spec.objects))
     if not satisfies(scenario, state, spec, model, res.trajectory):
         return None
     # Its solver values are those of the restriction's program (other LTL columns): a MIP start
