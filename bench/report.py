@@ -61,8 +61,9 @@ def bench_of(name: str) -> str:
                       f"{', '.join(BENCHES)})")
 
 
-def render_file(results: Path, name: str) -> str:
-    """The file's tables as its bench prints them, then where they come from."""
+def render_file(results: Path, name: str, commit: bool = True) -> str:
+    """The file's tables as its bench prints them, then where they come from (the code's commit
+    with ``commit``: in docs, not in the README)."""
     data = load(results, name)
     bench = bench_of(name)
     module = importlib.import_module(bench)  # closed_loop and robustness import Drake: only here
@@ -77,7 +78,7 @@ def render_file(results: Path, name: str) -> str:
         text = module.report(data["runs"], options)
     else:
         text = module.report(data)
-    return text.rstrip("\n") + "\n\n" + provenance(name, data, commit=True) + "\n"
+    return text.rstrip("\n") + "\n\n" + provenance(name, data, commit=commit) + "\n"
 
 
 def provenance(name: str, data: dict, commit: bool) -> str:
@@ -162,7 +163,8 @@ def regenerate(text: str, results: Path, relative: str) -> str:
     document (``relative``: the path from its folder to the repository root)."""
     def block(match: re.Match) -> str:
         name = match.group(2)
-        body = render_paper(results) if name == "paper" else render_file(results, name)
+        body = (render_paper(results) if name == "paper"
+                else render_file(results, name, commit=relative != ""))
         return match.group(1) + body.replace("](../", f"]({relative}") + match.group(4)
     return BLOCK.sub(block, text)
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
 
 import benchlib  # noqa: E402
+import demo  # noqa: E402
 
 
 def test_the_machine_record_carries_its_speed_by_two_fixed_workloads() -> None:
@@ -18,3 +20,15 @@ def test_the_machine_record_carries_its_speed_by_two_fixed_workloads() -> None:
     line = benchlib.footer(info, 0.0)
     for seconds in speed.values():
         assert f"{seconds:.3f} s" in line
+
+
+def test_demo_bench_runs_the_makefiles_demo_commands():
+    """bench/demo.py reads `make demo`'s commands from the Makefile: plan, then simulate, with
+    every flag the Makefile gives, its outputs in the folder asked for."""
+    plan, simulate = demo.demo_commands(Path("/tmp/x"))
+    recipe = (ROOT / "Makefile").read_text().split("\ndemo:", 1)[1].split("\n\n", 1)[0]
+    assert plan[1:4] == ["plan", "table1_vc", "--rule"] and simulate[1] == "simulate"
+    for flag in ("--out", "--plot", "--set"):
+        assert flag in plan
+    assert "/tmp/x/replay.html" in simulate and "/tmp/x/summary.json" in simulate
+    assert recipe.count("\t$(BIN)/dualarm-mpc") == 2  # the prerequisite line aside
