@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
+import importlib.util
 import math
 import re
 import reprlib
@@ -45,6 +46,11 @@ MAX_TEXT_CHARS = 10_000
 # C(12, 6) = 924 build a program of T = 40 in 0.27 s, C(16, 8) = 12,870 in 2.3 s (measured), and
 # a step builds one per horizon tried, the search many more
 MAX_TASK_SUBSETS = 1000
+
+
+def ortools_installed() -> bool:
+    """Whether OR-Tools (the CP-SAT relaxation, ``cpsat.py``) is installed here."""
+    return importlib.util.find_spec("ortools") is not None
 
 
 class ScenarioError(ValueError):

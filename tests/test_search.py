@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scenes import OBJECT1, OBJECT2, two_objects
+from scenes import random_scene, scene
 from strategies import formulas, traces
 
 from dualarm_mpc.evaluate import evaluate
@@ -35,14 +35,6 @@ from dualarm_mpc.spec import (
 )
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
-
-
-def scene(rule: int = 2, rules: tuple[str, ...] = (), **overrides) -> Scenario:
-    """The shared scene with a third object (to red, at the origin), one object per step."""
-    object3 = {"name": "object3", "position": [0.0, 0.0], "goal": "red"}
-    return two_objects(**{"name": "search", "objects": [OBJECT1, OBJECT2, object3],
-                          "rule": rule, "rules": list(rules), "m_o": 1, "n_o": 3,
-                          "solver": {"time_limit_s": 30.0, "mip_rel_gap": 1e-7}, **overrides})
 
 
 @pytest.mark.parametrize("rule", [1, 2])
@@ -105,24 +97,6 @@ def test_survives_idling_is_sound(formula, trace) -> None:
 
 
 # --- the search returns the monolithic optimum --------------------------------------------------
-
-
-def random_scene(seed: int) -> Scenario:
-    """Three objects at random in the cluster, one of four rule sets, both deliveries."""
-    rng = np.random.default_rng(seed)
-    def draw():  # within the hands' reach (y >= 0), apart
-        return rng.uniform([-0.2, 0.0], [0.2, 0.25], size=(3, 2))
-
-    positions = draw()
-    while min(np.linalg.norm(positions[a] - positions[b]) for a, b in ((0, 1), (0, 2), (1, 2))) \
-            < 0.08:
-        positions = draw()
-    rule, rules = [(1, ()), (2, ()), (2, ("G !(eta[1,1] & F eta[2,1])",)),
-                   (1, ("G(eta[2,3] -> WX !eta[2,1])",))][seed % 4]
-    delivery = ("reach", "rest")[(seed // 4) % 2]
-    objects = [{"name": f"object{j + 1}", "position": p.round(3).tolist(),
-                "goal": ("red", "blue")[int(rng.integers(2))]} for j, p in enumerate(positions)]
-    return scene(rule, rules, objects=objects, delivery=delivery, m_o=1 + seed % 2)
 
 
 def replayed_trace_satisfies(s: Scenario, spec, res, state: State | None = None) -> bool:
