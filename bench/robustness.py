@@ -2,37 +2,15 @@
 
 What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
 [-0.25, 0.25]² from the seed, reachable goals, its default (m_o, n_o)) with the robot's settings
-(:func:`dualarm_mpc.closed_loop.on_robot`) runs closed loop while a :class:`Disturbances` generator
-disturbs it, once per kind by default (``--per-kind``):
-
-* ``held`` — an object is knocked out of the hand that carries it (the gripper lets go);
-* ``delivered`` — an object resting in its goal is knocked out of it;
-* ``table`` — any object is knocked to a uniformly random place on the table top;
-* ``goal`` — a goal is moved to a random free place inside the hands' range (same size).
-
-Each disturbance is due at a random time; ``held`` and ``delivered`` then wait (looking every
-0.5 s) until an object is held / rests in its goal, and are skipped (and counted) if none is
-within 40 s. Knocks move an object by 0.10–0.35 m in a random direction (``held``,
-``delivered``; out of its goal for the latter) or anywhere on the table (``table``); every knock
-lands on the table top, at least 2 cm clear of every other object and of both hands' grasp boxes,
-and leaves the object at rest. A moved goal stays inside the hand range and the table, 2 cm clear
-of the other goals, covers no object of another goal and moves by at least 0.2 m.
-
-Randomness: one RNG per run, ``numpy.random.SeedSequence([7, seed])`` (apart from the objects'
-own draw from ``seed``); each disturbance draws from its own child of it, so one disturbance's
-draws never shift another's. Both rules of a seed get the same disturbances (kinds, due times,
-distances, directions). Which object a knock hits is read from the simulated state when it
-fires; runs are lockstep (the default), so that is the same on any machine and under any load
-(with ``--set 'solver.realtime: true'`` it is not).
-
-**Stuck** (decided from the model's bounds at each event, never from how the run ended): an
-object is stuck when, where a knock left it, or where it rests when its goal moves, no plan
-within the model can deliver it and it is not in its goal. That is, no hand can grasp it (outside
-the hand range — per hand, with eq. (16)'s gap — widened by its grasp half-size H_ij); or, under
-rule 1 (no-throw: no release outside the goal, hence no regrasp and no hand-over), no single grasp
-carries it into its target box (its goal less goal margin, its slot): the object moves rigidly
-with the hand, so from a grasp at offset o it can only reach o + hand range. Each event
-re-decides the objects it touches; the run's stuck objects are those stuck after the last one.
+(:func:`dualarm_mpc.closed_loop.on_robot`) runs closed loop while
+:class:`dualarm_mpc.disturbances.RandomDisturbances` disturbs it, once per kind by default
+(``--per-kind``): an object knocked out of the hand that carries it (``held``), out of its goal
+(``delivered``), anywhere on the table (``table``); a goal moved (``goal``). That module says
+how they are drawn (seeded per run: both rules of a seed get the same disturbances; lockstep, so
+the same on any machine, which ``--set 'solver.realtime: true'`` gives up) and when an object is
+**stuck** (no plan within the model can deliver it from where a knock left it, or where it rests
+when its goal moves; decided from the model's bounds at each event, never from how the run
+ended). The run's stuck objects are those stuck after the last event.
 
 Reported per rule (pooled over seeds) and per run:
 
@@ -60,8 +38,8 @@ keeps every run's record (every disturbance, every replan), the summary per rule
 the options. ``--workers N`` runs the runs as Dask tasks on a local cluster of N processes (each
 search then on one thread), ``--scheduler ADDRESS`` on an existing cluster (needs ``pip install
 '.[dask]'``); without either they run one after the other here. The report then says how many
-runs shared a machine: the replan budget is wall time, so runs on a loaded machine may diverge
-(see Randomness above).
+runs shared a machine: in real time the replan budget is wall time, so runs on a loaded machine
+may diverge.
 """
 
 from __future__ import annotations
@@ -72,12 +50,10 @@ import math
 import sys
 import time
 import traceback
-from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import benchlib
 import closed_loop
-import numpy as np
 from benchlib import (
     Progress,
     check_cluster_arguments,
@@ -94,255 +70,15 @@ from benchlib import (
 )
 from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal, summary_record
 
-from dualarm_mpc.closed_loop import World, default_duration, on_robot, simulate
-from dualarm_mpc.mld import REST_SPEED, Rect, delivered, in_goal, target_box
-from dualarm_mpc.scenario import SOLVER_BACKENDS, Event, Scenario, load_scenario, merge_overrides
-from dualarm_mpc.station import _table_extent
+from dualarm_mpc.closed_loop import default_duration, on_robot, simulate
+from dualarm_mpc.disturbances import KINDS, RandomDisturbances
+from dualarm_mpc.scenario import SOLVER_BACKENDS, Scenario, load_scenario, merge_overrides
 
 SCENARIO = "table1_vd"
-KINDS = ("held", "delivered", "table", "goal")
-DISTURBANCE_KEY = 7  # SeedSequence([KEY, seed]): the disturbances' stream, apart from the objects'
-# When each kind is due (s of simulated time): ``held`` early (the robot carries most then),
-# ``delivered`` once deliveries have begun.
-WINDOW = {"held": (3.0, 40.0), "delivered": (15.0, 70.0), "table": (3.0, 70.0),
-          "goal": (3.0, 70.0)}
-LOOK_EVERY = 0.5  # s: a disturbance waiting for its condition looks again
-PATIENCE = 40.0  # s: ... and gives up after
-KNOCK_DISTANCE = (0.10, 0.35)  # m: how far a held / delivered object is knocked
-CLEARANCE = 0.02  # m: between a knocked object and other objects / hands' grasp boxes / goals
-GOAL_SHIFT = 0.2  # m: a moved goal's centre moves at least this far
-TRIES = 2000  # random draws for a free place before a disturbance is skipped
 EXTRA_DURATION = 30.0  # simulated s added to simulate's default duration per disturbance
 FAILED = ("infeasible", "unbounded", "time_limit", "error", "no_horizon")
 OVER_BUDGET = ("searching", "over_budget")
 LOST_NOTE = " can no longer reach the goal"  # the planner's "stuck" replan note ends so
-
-
-# --- the model's bounds: where an object can be delivered from --------------------------------
-
-
-def hand_ranges(scenario: Scenario) -> tuple[Rect, Rect]:
-    """The range of hand 1 (right) and hand 2 (left): the workspace, less eq. (16)'s gap on the
-    side of the other hand (x_arm2 + gap <= x_arm1, both inside the workspace)."""
-    ws = Rect.of(scenario.robot.workspace)
-    gap = scenario.robot.hand_gap
-    right = Rect(ws.lo + [gap, 0.0], ws.hi.copy())
-    left = Rect(ws.lo.copy(), ws.hi - [gap, 0.0])
-    return right, left
-
-
-def stuck_reason(scenario: Scenario, goals: dict[str, list[float]], j: int,
-                 p: np.ndarray) -> str | None:
-    """Why no plan within the model can deliver object j from ``p`` with ``goals`` (None: it can,
-    or it is in its goal already). From the model's bounds only (module docstring)."""
-    p = np.asarray(p, float)[:2]
-    sc = replace(scenario, task=replace(scenario.task, goals=goals))
-    obj = sc.task.objects[j]
-    if in_goal(p, goals[obj.goal]):
-        return None
-    half = obj.grasp_half_size
-    target = target_box(sc, j)
-    graspable = False
-    for hand in hand_ranges(sc):
-        lo = np.maximum(hand.lo, p - half)  # where this hand can be while it grasps
-        hi = np.minimum(hand.hi, p + half)
-        if np.any(lo > hi + 1e-12):
-            continue
-        graspable = True
-        if sc.task.rule != 1:
-            return None  # rule 2: put down and pick up again, or throw: any graspable object
-        # Rule 1: one grasp, offset o = p - h (h in [lo, hi]); the object reaches o + range.
-        reach_lo = p - hi + hand.lo
-        reach_hi = p - lo + hand.hi
-        if np.all(reach_lo <= target.hi + 1e-12) and np.all(target.lo <= reach_hi + 1e-12):
-            return None
-    if not graspable:
-        return "beyond the hands' grasp range"
-    return "rule 1: no single grasp carries it into its goal"
-
-
-# --- the disturbances ---------------------------------------------------------------------------
-
-
-@dataclass
-class Planned:
-    """One disturbance: its kind, when it is due, its own RNG."""
-
-    kind: str
-    due: float
-    rng: np.random.Generator
-    give_up: float = 0.0
-    next_look: float = 0.0
-
-
-@dataclass
-class Disturbances:
-    """Seeded random disturbances of one run (``dualarm_mpc.closed_loop.Disturbance``).
-
-    ``log`` records every disturbance fired or skipped: kind, time, target, from/to (or the goal
-    boxes), and, for knocks and goal moves, the objects it left stuck (``stuck_reason``)."""
-
-    scenario: Scenario
-    seed: int
-    per_kind: int = 1
-    kinds: tuple[str, ...] = KINDS
-    plan: list[Planned] = field(init=False)
-    log: list[dict] = field(default_factory=list, init=False)
-    stuck: dict[int, str] = field(default_factory=dict, init=False)  # object → reason, now
-
-    def __post_init__(self) -> None:
-        kinds = [k for k in self.kinds for _ in range(self.per_kind)]
-        children = np.random.SeedSequence([DISTURBANCE_KEY, self.seed]).spawn(len(kinds))
-        self.plan = []
-        for kind, child in zip(kinds, children, strict=True):
-            rng = np.random.default_rng(child)
-            due = float(np.round(rng.uniform(*WINDOW[kind]), 3))
-            self.plan.append(Planned(kind, due, rng, give_up=due + PATIENCE, next_look=due))
-        self.plan.sort(key=lambda d: d.due)
-        sc = self.scenario
-        table = Rect.of(_table_extent(sc)).shrink(sc.table.object_size / 2)
-        self.table = table  # where an object's centre may be: the whole box on the table top
-        self.initial_stuck = {j: r for j, o in enumerate(sc.task.objects)
-                              if (r := stuck_reason(sc, sc.task.goals, j, o.position))}
-        self.stuck = dict(self.initial_stuck)
-
-    # the Disturbance protocol
-
-    def next_time(self) -> float | None:
-        return min((d.next_look for d in self.plan), default=None)
-
-    def __call__(self, world: World) -> list[Event]:
-        d = min(self.plan, key=lambda d: d.next_look)
-        event, entry = getattr(self, f"_{d.kind}")(d, world)
-        if event is None and world.t + LOOK_EVERY <= d.give_up and entry is None:
-            d.next_look = world.t + LOOK_EVERY  # its condition does not hold yet: look again
-            return []
-        self.plan.remove(d)
-        entry = {"kind": d.kind, "due": d.due, "t": round(world.t, 3), **(entry or {})}
-        if event is None:
-            wanted = "held" if d.kind == "held" else "resting in its goal"
-            entry.setdefault("skipped", f"no object {wanted} within {PATIENCE:g} s of its time")
-        else:
-            entry.update(self._judge(event, world))
-        self.log.append(entry)
-        return [] if event is None else [event]
-
-    # one per kind: (event, log entry) — (None, None) to wait, (None, entry) to skip
-
-    def _held(self, d: Planned, world: World):
-        held = np.flatnonzero(world.grasp.any(axis=0))
-        if held.size == 0:
-            return None, None
-        j = int(d.rng.choice(held))
-        return self._knock(d, world, j, lambda p: True)
-
-    def _delivered(self, d: Planned, world: World):
-        resting = self._resting(world)
-        if resting.size == 0:
-            return None, None
-        j = int(d.rng.choice(resting))
-        goal = Rect.of(world.goals[self.scenario.task.objects[j].goal])
-        margin = self.scenario.table.object_size / 2  # the whole box out of the goal
-        return self._knock(d, world, j, lambda p: not goal.contains(p, tol=margin))
-
-    def _table(self, d: Planned, world: World):
-        j = int(d.rng.integers(self.scenario.n_objects))
-        for _ in range(TRIES):
-            p = d.rng.uniform(self.table.lo, self.table.hi)
-            if self._free(p, j, world):
-                return self._move(world, j, p), {"target": self.scenario.task.objects[j].name}
-        return None, {"target": self.scenario.task.objects[j].name, "skipped": "no free place"}
-
-    def _goal(self, d: Planned, world: World):
-        sc = self.scenario
-        names = sorted(world.goals)
-        name = names[int(d.rng.integers(len(names)))]
-        old = Rect.of(world.goals[name])
-        size = old.hi - old.lo
-        ws = Rect.of(sc.robot.workspace)
-        region = Rect(np.maximum(ws.lo, self.table.lo), np.minimum(ws.hi, self.table.hi) - size)
-        others = [Rect.of(b) for g, b in world.goals.items() if g != name]
-        strangers = [j for j, o in enumerate(sc.task.objects) if o.goal != name]
-        for _ in range(TRIES):
-            lo = d.rng.uniform(region.lo, region.hi)
-            new = Rect(lo, lo + size)
-            if np.abs((new.lo + new.hi) / 2 - (old.lo + old.hi) / 2).max() < GOAL_SHIFT:
-                continue
-            if any(_overlap(new, b, CLEARANCE) for b in others):
-                continue
-            if new.contains(world.object_pos[strangers], tol=sc.table.object_size / 2).any():
-                continue
-            box = [round(float(v), 4) for v in new.bounds()]
-            return Event(time=round(world.t, 3), kind="move_goal", target=name, box=box), {
-                "target": name, "from": world.goals[name], "to": box}
-        return None, {"target": name, "skipped": "no free place"}
-
-    # helpers
-
-    def _resting(self, world: World) -> np.ndarray:
-        sc = self.scenario
-        resting = np.array([delivered(world.object_pos[j], world.object_vel[j],
-                                      world.goals[o.goal], REST_SPEED)
-                            for j, o in enumerate(sc.task.objects)])
-        return np.flatnonzero(resting & ~world.grasp.any(axis=0))
-
-    def _knock(self, d: Planned, world: World, j: int, accept):
-        name = self.scenario.task.objects[j].name
-        for _ in range(TRIES):
-            angle = d.rng.uniform(0.0, 2 * math.pi)
-            distance = d.rng.uniform(*KNOCK_DISTANCE)
-            p = world.object_pos[j] + distance * np.array([math.cos(angle), math.sin(angle)])
-            if accept(p) and self._free(p, j, world):
-                return self._move(world, j, p), {"target": name}
-        return None, {"target": name, "skipped": "no free place"}
-
-    def _free(self, p: np.ndarray, j: int, world: World) -> bool:
-        """On the table top, clear of every other object and of both hands' grasp boxes."""
-        sc = self.scenario
-        if not self.table.contains(p):
-            return False
-        others = np.delete(world.object_pos, j, axis=0)
-        size = sc.table.object_size
-        if others.size and (np.abs(others - p).max(axis=1) < size + CLEARANCE).any():
-            return False
-        reach = sc.task.objects[j].grasp_half_size + size / 2 + CLEARANCE
-        return not (np.abs(world.hand_pos - p).max(axis=1) < reach).any()
-
-    def _move(self, world: World, j: int, p: np.ndarray) -> Event:
-        position = [round(float(v), 4) for v in p]
-        return Event(time=round(world.t, 3), kind="move_object",
-                     target=self.scenario.task.objects[j].name, position=position)
-
-    def _judge(self, event: Event, world: World) -> dict:
-        """Re-decide stuck for the objects the event touches; the log entry's fields."""
-        sc = self.scenario
-        names = [o.name for o in sc.task.objects]
-        if event.kind == "move_object":
-            j = names.index(event.target)
-            reason = stuck_reason(sc, world.goals, j, event.position)
-            self._set_stuck(j, reason)
-            return {"from": [round(float(v), 4) for v in world.object_pos[j]],
-                    "to": event.position, "was_held": bool(world.grasp[:, j].any()),
-                    "stuck": reason}
-        goals = {**world.goals, event.target: event.box}
-        stuck = {}
-        for j, o in enumerate(sc.task.objects):
-            if o.goal == event.target:
-                reason = stuck_reason(sc, goals, j, world.object_pos[j])
-                self._set_stuck(j, reason)
-                if reason:
-                    stuck[o.name] = reason
-        return {"stuck": stuck or None}
-
-    def _set_stuck(self, j: int, reason: str | None) -> None:
-        if reason:
-            self.stuck[j] = reason
-        else:
-            self.stuck.pop(j, None)
-
-
-def _overlap(a: Rect, b: Rect, gap: float) -> bool:
-    return bool(np.all(a.lo < b.hi + gap) and np.all(b.lo < a.hi + gap))
 
 
 # --- command line ------------------------------------------------------------------------------
@@ -413,14 +149,14 @@ def run_one(task: dict) -> dict:
     disturb = None
     try:
         scenario = scenario_for(rule, seed, task)
-        disturb = Disturbances(scenario, seed, task["per_kind"], tuple(task["kinds"]))
+        disturb = RandomDisturbances(scenario, seed, task["per_kind"], tuple(task["kinds"]))
         duration = task["duration"] or (default_duration(scenario)
-                                        + EXTRA_DURATION * len(disturb.plan))
+                                        + EXTRA_DURATION * len(disturb.schedule))
         record.update(m_o=scenario.task.m_o, n_o=scenario.task.n_o, n_objects=scenario.n_objects,
                       time_limit_s=scenario.solver.time_limit_s, duration_s=duration,
                       objects=[{"name": o.name, "position": o.position, "goal": o.goal}
                                for o in scenario.task.objects],
-                      planned=[{"kind": d.kind, "due": d.due} for d in disturb.plan])
+                      planned=[{"kind": d.kind, "due": d.due} for d in disturb.schedule])
         summary = simulate(scenario, duration, progress=progress, disturb=disturb)
     except Exception:  # a bug in one run must not end the bench: record it and go on
         record["message"] = traceback.format_exc(limit=6)

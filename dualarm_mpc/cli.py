@@ -312,7 +312,7 @@ def _failed_writes(code: int, written: bool) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from dualarm_mpc.horizon import solver_options
+    from dualarm_mpc.horizon import HorizonProgram, solver_options
     from dualarm_mpc.sequential import PlanningError, plan
     from dualarm_mpc.solver import Interrupt
     from dualarm_mpc.verify import verify
@@ -358,9 +358,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
         export = MpsExport(scenario, args.export)
 
     def tried(t) -> None:  # a horizon without a plan: say so, a search is never silent
-        if export:
-            export(t)
         res = t.result
+        if export is not None and export.error is None:
+            form = HorizonProgram(scenario, t.state, list(t.spec.objects),
+                                  res.horizon).standard_form(t.spec)
+            export.add(t.step, t.spec, res.horizon, res.status, res.cost, form)
         if not res.status.has_solution:
             said[0] = time.perf_counter()
             print(f"{'':>4}  {'':<22} {res.horizon:>3} {res.binaries:>8}  "

@@ -17,21 +17,18 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 from pydrake.geometry import Meshcat
-from pydrake.math import RigidTransform
-from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import Context, EventStatus
 
 from dualarm_mpc import outputs, recording
 from dualarm_mpc.diagram import DualArm, MakeDiagram
+from dualarm_mpc.disturbances import Disturbance, World, knock, move_goal
 from dualarm_mpc.mld import REST_SPEED, at_rest, delivered
 from dualarm_mpc.mpc import Replan, Solve
 from dualarm_mpc.scenario import Event, Scenario, ScenarioError
-from dualarm_mpc.systems.state_estimator import split_measured_state
 
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
 # object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
@@ -89,30 +86,6 @@ class Summary:
         outputs.write(path, outputs.json_text(self.to_json()))
 
 
-@dataclass(frozen=True)
-class World:
-    """What a :class:`Disturbance` sees when it looks: the measured hands and objects, what the
-    gripper holds now, and the goals and deliveries as the planner last counted them."""
-
-    t: float
-    hand_pos: np.ndarray  # (2, 2)
-    object_pos: np.ndarray  # (N, 2)
-    object_vel: np.ndarray  # (N, 2)
-    grasp: np.ndarray  # (2, N) bool: attached in the gripper now
-    goals: dict[str, list[float]]
-    delivered: np.ndarray  # (N,) bool: resting in its goal at the planner's last replan
-
-
-class Disturbance(Protocol):
-    """Environment events decided while the run goes on (e.g. "knock the object in the hand"),
-    next to the scenario's fixed ``events``. The simulation looks at ``next_time()`` (None: no
-    more) and calls the disturbance there; each call must move ``next_time()`` on."""
-
-    def next_time(self) -> float | None: ...
-
-    def __call__(self, world: World) -> list[Event]: ...
-
-
 def default_duration(scenario: Scenario) -> float:
     """Long enough for the sequential steps with room for replanning."""
     return 30.0 + 15.0 * scenario.n_objects * scenario.robot.dt
@@ -120,19 +93,11 @@ def default_duration(scenario: Scenario) -> float:
 
 def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
     """An environment change: knock an object to a new place, or move a goal."""
-    plant = dual.station.plant
     if event.kind == "move_object":
         j = [o.name for o in scenario.task.objects].index(event.target)
-        body = dual.station.objects[j]
-        pc = plant.GetMyMutableContextFromRoot(context)
-        z = plant.EvalBodyPoseInWorld(pc, body).translation()[2]
-        plant.SetFreeBodyPose(pc, body, RigidTransform([*event.position, z]))
-        plant.SetFreeBodySpatialVelocity(pc, body, SpatialVelocity.Zero())
-        gripper = dual.stack.gripper  # out of the hand: else the grip pulls it straight back
-        gripper.detach(gripper.GetMyMutableContextFromRoot(context), j)
+        knock(dual, context, j, event.position)
     else:
-        dual.goals.set_goal(dual.goals.GetMyMutableContextFromRoot(context), event.target,
-                            event.box)
+        move_goal(dual, context, event.target, event.box)
         if meshcat is not None:
             recording.show_goal(meshcat, event.target, event.box, context.get_time())
 
@@ -171,7 +136,7 @@ class _Events:
             self.next += 1
         d = self.disturb
         while d is not None and (look := d.next_time()) is not None and look <= t:
-            for e in d(_world(self.dual, context)):
+            for e in d(World.observe(self.dual, context)):
                 _apply(e, self.scenario, self.dual, context, self.meshcat)
                 self.applied.append(e)
             after = d.next_time()
@@ -273,17 +238,6 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
         recording.save_recording(meshcat, html)
     return _summary(scenario, dual, context, t, wall, monitor.replans, events.applied,
                     interrupted)
-
-
-def _world(dual, context) -> World:
-    m = split_measured_state(dual.stack.estimator.get_measured_state_output_port().Eval(
-        dual.stack.estimator.GetMyContextFromRoot(context)), dual.station.n_objects)
-    s = dual.planner.latest_state(dual.planner.GetMyContextFromRoot(context))
-    goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
-    return World(t=context.get_time(), hand_pos=m["hand_pos"].copy(),
-                 object_pos=m["object_pos"].copy(), object_vel=m["object_vel"].copy(),
-                 grasp=m["grasp"] > 0.5, goals={k: list(v) for k, v in goals.items()},
-                 delivered=np.array([d is not None for d in s.delivered_time], bool))
 
 
 def _object_velocities(dual, context) -> np.ndarray:

@@ -1,13 +1,14 @@
 """MPS export (``dualarm-mpc plan --export DIR``): each horizon's MILP as a file, with an index.
 
-For every horizon the planner tries, :class:`MpsExport` writes the *monolithic* MILP of that
-step and horizon — the MLD model, pruning, the step's specification (φ_task and the rules) and
-cost (17), the program ``--search monolithic`` solves — as ``stepSS_TT.mps`` (written by
-HiGHS), and ``index.json`` naming each file's step, horizon, objects and the planner's status
-there. With the skeleton search (the default) the planner never solves that program as one: it
-solves many narrowed pieces of it, which are no instance on their own. The monolithic MILP is
-what another solver can take, and its optimum is the one the search returns at that horizon
-(equal, or below it where only a hand-over the search left out is cheaper: docs/search.md).
+For every horizon the planner tries, the caller gives :class:`MpsExport` the *monolithic* MILP of
+that step and horizon in standard form — the MLD model, pruning, the step's specification (φ_task
+and the rules) and cost (17), the program ``--search monolithic`` solves — and the planner's
+status there; it writes the MILP as ``stepSS_TT.mps`` (written by HiGHS), and ``index.json``
+naming each file's step, horizon, objects and that status. With the skeleton search (the
+default) the planner never solves that program as one: it solves many narrowed pieces of it,
+which are no instance on their own. The monolithic MILP is what another solver can take, and its
+optimum is the one the search returns at that horizon (equal, or below it where only a hand-over
+the search left out is cheaper: docs/search.md).
 
 The index is rewritten after every file, so an interrupted plan leaves a complete index of the
 horizons tried so far. Every file is written whole or not at all (``outputs.py``); the first write
@@ -22,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from dualarm_mpc import outputs
-from dualarm_mpc.horizon import HorizonProgram
+from dualarm_mpc.backends import write_mps
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.sequential import HorizonTried
-from dualarm_mpc.solver import write_mps
+from dualarm_mpc.solver import StandardForm, Status
+from dualarm_mpc.spec import Specification
 
 INDEX = "index.json"
 FILES = re.compile(r"step\d+_T\d+\.mps|" + re.escape(INDEX))  # every name the export writes
@@ -37,8 +38,7 @@ def exported_file(name: str) -> bool:
 
 
 class MpsExport:
-    """Writes the monolithic MILP of each horizon tried into ``directory`` (an ``on_try``
-    callback of :func:`sequential.plan`)."""
+    """Writes the monolithic MILP of each horizon tried into ``directory``."""
 
     def __init__(self, scenario: Scenario, directory: str | Path) -> None:
         self.scenario = scenario
@@ -47,28 +47,27 @@ class MpsExport:
         self.entries: list[dict] = []
         self.error: OSError | None = None
 
-    def __call__(self, tried: HorizonTried) -> None:
-        if self.error is None:
-            try:
-                self._export(tried)
-            except OSError as err:
-                self.error = err
-
-    def _export(self, tried: HorizonTried) -> None:
-        res, spec = tried.result, tried.spec
-        program = HorizonProgram(self.scenario, tried.state, list(spec.objects), res.horizon)
-        form = program.standard_form(spec)
-        name = f"step{tried.step:02d}_T{res.horizon:02d}.mps"
-        outputs.write_with(self.directory / name, lambda tmp: write_mps(form, tmp), ".mps")
-        self.entries.append({
-            "step": tried.step, "horizon": res.horizon,
-            "objects": [self.scenario.task.objects[j].name for j in spec.objects],
-            "m_o": spec.m_o, "status": res.status.value,
-            "cost": res.cost if res.status.has_solution else None,
-            "file": name, "variables": len(form.c), "constraints": form.A.shape[0],
-            "integers": int(np.count_nonzero(form.integer)),
-        })
-        self._write_index()
+    def add(self, step: int, spec: Specification, horizon: int, status: Status, cost: float,
+            form: StandardForm) -> None:
+        """Write ``form``, the MILP of the ``step``-th sequential step (from 1) of ``spec`` at
+        ``horizon``, where the planner found ``status`` and ``cost``; after a failed write,
+        nothing (the export has ended)."""
+        if self.error is not None:
+            return
+        name = f"step{step:02d}_T{horizon:02d}.mps"
+        try:
+            outputs.write_with(self.directory / name, lambda tmp: write_mps(form, tmp), ".mps")
+            self.entries.append({
+                "step": step, "horizon": horizon,
+                "objects": [self.scenario.task.objects[j].name for j in spec.objects],
+                "m_o": spec.m_o, "status": status.value,
+                "cost": cost if status.has_solution else None,
+                "file": name, "variables": len(form.c), "constraints": form.A.shape[0],
+                "integers": int(np.count_nonzero(form.integer)),
+            })
+            self._write_index()
+        except OSError as err:
+            self.error = err
 
     def _write_index(self) -> None:
         solver = self.scenario.solver

@@ -21,6 +21,7 @@ import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc import program
+from dualarm_mpc.backends import solve_standard_form
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
 from dualarm_mpc.mld import Model, Rect, State, in_goal, reachability, replay
@@ -32,7 +33,6 @@ from dualarm_mpc.solver import (
     StandardForm,
     Start,
     Status,
-    solve_standard_form,
     standard_form,
 )
 from dualarm_mpc.spec import Specification

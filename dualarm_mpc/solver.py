@@ -1,25 +1,20 @@
-"""The one solver boundary: a MathematicalProgram MILP in standard form, solved by a backend.
+"""The one solver boundary: a MILP in standard form, what a solve of it is asked and answers.
 
 Drake's pip wheel has no MILP solver, so :func:`standard_form` reads a program's linear costs,
-linear constraints, bounding boxes and binary variables in bulk as sparse matrices, and
-:func:`solve_standard_form` hands them to the backend that :class:`SolveOptions` names: HiGHS
-(the default), SCIP, Gurobi or CPLEX, each an adapter in ``backends.py`` that is imported only
-when used. Every backend gets the same options and returns the same :class:`SolveResult`:
-status, bound and gap are made here from what each solver said, one way for all. This module
-knows nothing of LTL or robots.
+linear constraints, bounding boxes and binary variables in bulk as sparse matrices, a
+:class:`StandardForm`; ``backends.py`` solves it with the backend :class:`SolveOptions` names —
+HiGHS (the default), SCIP, Gurobi or CPLEX — and every backend answers with the same
+:class:`SolveResult`. This module knows nothing of LTL or robots, nor of any one solver.
 """
 
 from __future__ import annotations
 
 import enum
-import errno
 import importlib.util
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
@@ -270,100 +265,3 @@ class Outcome:
     objective: float
     bound: float
     message: str
-
-
-def solve(prog: MathematicalProgram, options: SolveOptions = SolveOptions(),
-          start: Start | None = None) -> SolveResult:
-    """Solve the MILP ``prog`` from an optional MIP ``start``."""
-    return solve_standard_form(standard_form(prog), options, start)
-
-
-def solve_standard_form(f: StandardForm, options: SolveOptions,
-                        start: Start | None = None) -> SolveResult:
-    """Solve ``f`` with ``options.backend``; raises :class:`SolverUnavailable` when that backend
-    cannot (unknown, not installed, unlicensed, the model over its licence's size limit)."""
-    from dualarm_mpc import backends
-
-    require_backend(options.backend)
-    t0 = time.perf_counter()
-    out = getattr(backends, options.backend)(f, options, _start(f, start))
-    return _result(f, options, out, time.perf_counter() - t0)
-
-
-def _start(f: StandardForm, start: Start | None) -> MipStart | None:
-    """``start`` as columns and values within their bounds."""
-    if start is None:
-        return None
-    if isinstance(start, tuple):
-        index = np.asarray(start[0], int)
-        value = np.asarray(start[1], float)
-    else:
-        index, value = np.arange(len(f.c)), np.asarray(start, float)
-    value = np.clip(value, f.col_lb[index], f.col_ub[index])
-    return MipStart(index, value, complete=len(index) == len(f.c))
-
-
-def _result(f: StandardForm, options: SolveOptions, out: Outcome, wall: float) -> SolveResult:
-    """One backend's outcome as a :class:`SolveResult`, the same way for every backend:
-
-    * "infeasible or unbounded" is infeasible when every column is bounded (then no objective
-      is unbounded), else left as UNBOUNDED;
-    * stopped early with a solution is FEASIBLE, or OPTIMAL when its gap is within the one
-      asked (as each solver itself decides when it does not stop early; any solution when
-      that is 1 or more); without one, TIME_LIMIT;
-    * gap = (objective − bound) / |objective| with the bound no higher than the objective."""
-    status, message = out.status, out.message
-    if status is Status.UNBOUNDED and np.isfinite(f.col_lb).all() and \
-            np.isfinite(f.col_ub).all():
-        status, message = Status.INFEASIBLE, message + " (every column bounded: infeasible)"
-    if status in (Status.OPTIMAL, Status.TIME_LIMIT) and out.x is not None:
-        if not np.isfinite(out.x).all():
-            return SolveResult(Status.ERROR, np.inf, -np.inf, np.inf, wall, None,
-                               message + ", no finite solution", options.backend)
-        objective = out.objective
-        bound = min(out.bound, objective) if not np.isnan(out.bound) else -np.inf
-        gap = (objective - bound) / max(abs(objective), 1e-10) if np.isfinite(bound) else np.inf
-        if status is Status.TIME_LIMIT:  # a gap of 1 or more asks for any solution
-            within = gap <= options.mip_rel_gap or options.mip_rel_gap >= 1
-            status = Status.OPTIMAL if within else Status.FEASIBLE
-        return SolveResult(status, objective, bound, gap, wall, out.x, message, options.backend)
-    if status is Status.OPTIMAL:
-        status, message = Status.ERROR, message + ", no solution"
-    bound = {Status.INFEASIBLE: np.inf,
-             Status.TIME_LIMIT: -np.inf if np.isnan(out.bound) else out.bound}.get(status, -np.inf)
-    return SolveResult(status, np.inf, bound, np.inf, wall, None, message, options.backend)
-
-
-def write_mps(f: StandardForm, path: str | Path) -> None:
-    """Write ``f`` as an MPS file (through HiGHS), for any other solver to read; ``OSError``
-    if the file is not whole."""
-    import highspy
-
-    from dualarm_mpc.backends import highs_model
-
-    path = Path(path)
-    if highs_model(f).writeModel(str(path)) == highspy.HighsStatus.kError or \
-            not _ends(path, b"ENDATA\n"):
-        raise _why_short(path)
-
-
-def _ends(path: Path, tail: bytes) -> bool:
-    """Whether file ``path`` ends with ``tail`` (HiGHS does not check its writes: a full disk
-    or a file-size limit leaves a truncated file it reports written)."""
-    try:
-        with open(path, "rb") as file:
-            file.seek(max(path.stat().st_size - len(tail), 0))
-            return file.read() == tail
-    except OSError:
-        return False
-
-
-def _why_short(path: Path) -> OSError:
-    """The OS's reason a write to ``path`` fell short, which HiGHS does not tell: asked by
-    appending a byte to the (failed, to be discarded) file."""
-    try:
-        with open(path, "ab") as file:
-            file.write(b"\n")
-    except OSError as err:
-        return OSError(err.errno, err.strerror, str(path))
-    return OSError(errno.EIO, "HiGHS could not write the whole MPS file", str(path))

@@ -124,7 +124,9 @@ def _object_proximity(size: float, mu: float) -> ProximityProperties:
     return props
 
 
-def _table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
+def table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
+    """The table top [x0, x1, y0, y1]: ``margin`` beyond the workspace, every goal and every
+    object's start."""
     xs = [scenario.robot.workspace[0], scenario.robot.workspace[1]]
     ys = [scenario.robot.workspace[2], scenario.robot.workspace[3]]
     for box in scenario.task.goals.values():
@@ -141,7 +143,7 @@ def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> GeometryI
     world = plant.world_body()
     table = plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "table",
                                             _point_contact(scenario.table.friction))
-    x0, x1, y0, y1 = _table_extent(scenario)
+    x0, x1, y0, y1 = table_extent(scenario)
     thickness = 0.02
     plant.RegisterVisualGeometry(
         world,
@@ -317,7 +319,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         hand_gap=scenario.robot.hand_gap,
         time_step=time_step,
         slide_time_constant=scenario.table.slide_time_constant,
-        table=_table_extent(scenario),
+        table=table_extent(scenario),
         arm_pairs=_arm_pairs(plant, robot, scene_graph),
         hand_object_pairs=tuple((g, box) for hand in hands
                                 for g in plant.GetCollisionGeometriesForBody(hand)

@@ -12,13 +12,12 @@ is the same on any machine.
 
 from __future__ import annotations
 
-from pydrake.math import RigidTransform
-from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import EventStatus
 
 from dualarm_mpc.closed_loop import on_robot
 from dualarm_mpc.diagram import MakeDiagram
+from dualarm_mpc.disturbances import knock, move_goal
 from dualarm_mpc.mld import REST_SPEED, delivered
 from dualarm_mpc.scenario import load_scenario, merge_overrides
 
@@ -34,21 +33,15 @@ def main() -> None:
     merge_overrides(overrides, task)
     scenario = load_scenario("table1_vd", overrides)
     dual = MakeDiagram(scenario)
-    plant, goals, gripper = dual.station.plant, dual.goals, dual.stack.gripper
     simulator = Simulator(dual.diagram)
     root = simulator.get_mutable_context()
 
-    def knock(context) -> None:
-        pc = plant.GetMyMutableContextFromRoot(context)
-        body = dual.station.objects[0]
-        z = plant.EvalBodyPoseInWorld(pc, body).translation()[2]
-        plant.SetFreeBodyPose(pc, body, RigidTransform([*KNOCK_TO, z]))
-        plant.SetFreeBodySpatialVelocity(pc, body, SpatialVelocity.Zero())
-        gripper.detach(gripper.GetMyMutableContextFromRoot(context), 0)
+    def knock_object1(context) -> None:  # out of the hand, if it holds it
+        knock(dual, context, 0, KNOCK_TO)
         print(f"t = {context.get_time():4.1f} s: object1 knocked to {KNOCK_TO}")
 
-    def move_goal(context) -> None:
-        goals.set_goal(goals.GetMyMutableContextFromRoot(context), "red", RED)
+    def move_red(context) -> None:
+        move_goal(dual, context, "red", RED)
         print(f"t = {context.get_time():4.1f} s: the red goal moved to {RED}")
 
     def monitor(context) -> EventStatus:  # looks only
@@ -57,7 +50,7 @@ def main() -> None:
         return EventStatus.Succeeded()
 
     simulator.set_monitor(monitor)
-    for t, change in ((KNOCK_T, knock), (MOVE_T, move_goal), (END_T, None)):
+    for t, change in ((KNOCK_T, knock_object1), (MOVE_T, move_red), (END_T, None)):
         status = simulator.AdvanceTo(t)
         if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
             break

@@ -20,6 +20,7 @@ from pydrake.solvers import MathematicalProgram
 from test_program import knapsack, market_split
 
 from dualarm_mpc import backends
+from dualarm_mpc.backends import solve, solve_standard_form
 from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario
@@ -32,8 +33,6 @@ from dualarm_mpc.solver import (
     SolverUnavailable,
     Status,
     installed_backends,
-    solve,
-    solve_standard_form,
     standard_form,
 )
 from dualarm_mpc.spec import specification
@@ -270,7 +269,8 @@ def test_no_backend_prints_anything() -> None:
     """Solver banners (HiGHS's, Gurobi's licence line, CPLEX's log) went to stdout, into the
     CLI's table."""
     code = ("from test_program import knapsack\n"
-            "from dualarm_mpc.solver import SolveOptions, installed_backends, solve\n"
+            "from dualarm_mpc.backends import solve\n"
+            "from dualarm_mpc.solver import SolveOptions, installed_backends\n"
             "for b in installed_backends():\n"
             "    assert solve(knapsack()[0], SolveOptions(backend=b)).status.value == 'optimal'\n")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

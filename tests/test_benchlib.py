@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
+import benchlib
+import demo
 
-import benchlib  # noqa: E402
-import demo  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_machine_record_carries_its_speed_by_two_fixed_workloads() -> None:

@@ -54,11 +54,11 @@ def test_plan_with_every_installed_solver(scenario, tmp_path, backend, search,
     solved_by = []  # the backend of each solve the plan made, each still the real solve
 
     def counted(name: str):
-        real = getattr(backends, name)
+        real = backends.ADAPTERS[name]
         return lambda *args: (solved_by.append(name), real(*args))[1]
 
     for name in BACKENDS:
-        monkeypatch.setattr(backends, name, counted(name))
+        monkeypatch.setitem(backends.ADAPTERS, name, counted(name))
     out = tmp_path / "plan.json"
     assert main(["plan", str(scenario), "--solver", backend, "--search", search,
                  "--out", str(out)]) == 0

@@ -21,15 +21,11 @@ from scenes import random_scene
 pytest.importorskip("ortools", reason="OR-Tools is not installed (pip install '.[ortools]')")
 
 from dualarm_mpc import cpsat  # noqa: E402
+from dualarm_mpc.backends import solve_standard_form  # noqa: E402
 from dualarm_mpc.horizon import HorizonProgram  # noqa: E402
 from dualarm_mpc.mld import State  # noqa: E402
 from dualarm_mpc.sequential import predict_horizon  # noqa: E402
-from dualarm_mpc.solver import (  # noqa: E402
-    SolveOptions,
-    StandardForm,
-    Status,
-    solve_standard_form,
-)
+from dualarm_mpc.solver import SolveOptions, StandardForm, Status  # noqa: E402
 from dualarm_mpc.spec import specification  # noqa: E402
 
 QUICK = SolveOptions(time_limit_s=10.0)

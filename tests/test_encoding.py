@@ -17,6 +17,7 @@ from pydrake.solvers import MathematicalProgram
 from strategies import formulas, traces
 
 from dualarm_mpc import sequential
+from dualarm_mpc.backends import solve
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import build_program, solve_step
@@ -24,7 +25,7 @@ from dualarm_mpc.linear import Rows, bound, new_variables
 from dualarm_mpc.ltl import Atom, F, G, atoms, nnf, parse
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, apply_overrides
-from dualarm_mpc.solver import SolveOptions, Status, solve
+from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import negated_atoms, specification
 
 P, Q, R = Atom("p"), Atom("q"), Atom("r")

@@ -4,14 +4,9 @@ and above predictT by both methods, which agree; the table and JSON written."""
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
+import horizons
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-import horizons  # noqa: E402
 
 
 def test_parse_horizons() -> None:

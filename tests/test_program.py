@@ -15,10 +15,11 @@ from pydrake.solvers import MathematicalProgram
 from scenes import OBJECT1, OBJECT2
 
 from dualarm_mpc import sequential
+from dualarm_mpc.backends import solve
 from dualarm_mpc.horizon import HorizonProgram, build_program, solve_step
 from dualarm_mpc.mld import Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.solver import SolveOptions, Status, solve, standard_form
+from dualarm_mpc.solver import SolveOptions, Status, standard_form
 from dualarm_mpc.spec import specification
 
 

@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 
 from dualarm_mpc import route
+from dualarm_mpc.backends import solve_standard_form
 from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.mld import N_HANDS, Model, State, in_goal
 from dualarm_mpc.route import axis_steps, axis_times, horizon_bound, orders, route_steps
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.solver import SolveOptions, Status, solve_standard_form
+from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import restricted, specification
 
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from pydrake.solvers import MathematicalProgram
 
-from dualarm_mpc.solver import Status, solve, standard_form
+from dualarm_mpc.backends import solve
+from dualarm_mpc.solver import Status, standard_form
 
 
 def _linear_program() -> tuple[MathematicalProgram, np.ndarray]:

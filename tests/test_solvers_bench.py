@@ -4,16 +4,11 @@ only where both solvers have a plan, and times on the same steps; one real step 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import pytest
+import solvers
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-import solvers  # noqa: E402
-
-from dualarm_mpc.solver import installed_backends  # noqa: E402
+from dualarm_mpc.solver import installed_backends
 
 
 def solve(backend, method, step, status, cost, cpu, constraints=900):

@@ -7,15 +7,11 @@ from __future__ import annotations
 
 import json
 import logging
-import sys
 from pathlib import Path
 
+import benchlib
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-import benchlib  # noqa: E402
-import table2  # noqa: E402
+import table2
 
 pytestmark = pytest.mark.slow  # starts Dask clusters
 

@@ -1,24 +1,20 @@
-"""bench/robustness.py: the stuck criterion (from the model's bounds), the seeded disturbance
+"""disturbances.py: the stuck criterion (from the model's bounds), the seeded disturbance
 generator (reproducible, realistic: on the table, clear of objects and hands, goals inside the
 hand range), and the closed-loop hook it drives — a knock out of the hand really leaves the hand.
 """
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-
-import robustness as rb  # noqa: E402
-
-from dualarm_mpc.closed_loop import World, on_robot, simulate  # noqa: E402
-from dualarm_mpc.mld import Rect  # noqa: E402
-from dualarm_mpc.scenario import (  # noqa: E402
+from dualarm_mpc import disturbances as dist
+from dualarm_mpc.closed_loop import on_robot, simulate
+from dualarm_mpc.disturbances import World
+from dualarm_mpc.mld import Rect
+from dualarm_mpc.scenario import (
     Event,
     ObjectSpec,
     Robot,
@@ -56,7 +52,7 @@ def test_objects_in_the_hand_range_or_within_a_grasp_of_it_are_not_stuck(rule) -
     sc = vd(rule)
     j = index_of_goal(sc, "red")
     for p in ([0.0, 0.0], [0.9, -0.3], [-0.94, 0.2], [0.5, 0.94]):
-        assert rb.stuck_reason(sc, sc.task.goals, j, np.array(p)) is None, p
+        assert dist.stuck_reason(sc, sc.task.goals, j, np.array(p)) is None, p
 
 
 @pytest.mark.parametrize("rule", [1, 2])
@@ -64,9 +60,10 @@ def test_objects_beyond_the_grasp_range_are_stuck_unless_in_their_goal(rule) -> 
     sc = vd(rule)
     j = index_of_goal(sc, "green")
     for p in ([0.96, 0.0], [-0.96, 0.0], [0.0, -0.36], [0.5, 1.1]):
-        assert rb.stuck_reason(sc, sc.task.goals, j, np.array(p)) == "beyond the hands' grasp range"
+        assert dist.stuck_reason(sc, sc.task.goals, j, np.array(p)) == \
+            "beyond the hands' grasp range"
     # in its own goal beyond reach (green reaches y = 1.15, the hands y = 0.9): delivered
-    assert rb.stuck_reason(sc, sc.task.goals, j, np.array([0.0, 1.1])) is None
+    assert dist.stuck_reason(sc, sc.task.goals, j, np.array([0.0, 1.1])) is None
 
 
 def test_rule_1_without_regrasp_an_object_at_the_far_edge_cannot_reach_a_far_goal() -> None:
@@ -75,15 +72,15 @@ def test_rule_1_without_regrasp_an_object_at_the_far_edge_cannot_reach_a_far_goa
     release outside the goal (rule 1) there is no regrasp. Rule 2 may put it down and regrasp."""
     p = np.array([0.0, -0.34])
     j = index_of_goal(vd(1), "green")
-    assert rb.stuck_reason(vd(1), vd(1).task.goals, j, p) == \
+    assert dist.stuck_reason(vd(1), vd(1).task.goals, j, p) == \
         "rule 1: no single grasp carries it into its goal"
-    assert rb.stuck_reason(vd(2), vd(2).task.goals, j, p) is None
+    assert dist.stuck_reason(vd(2), vd(2).task.goals, j, p) is None
     red = index_of_goal(vd(1), "red")
-    assert rb.stuck_reason(vd(1), vd(1).task.goals, red, p) is None  # red reaches down to 0.68
+    assert dist.stuck_reason(vd(1), vd(1).task.goals, red, p) is None  # red reaches down to 0.68
 
 
 def test_the_hand_gap_of_eq_16_leaves_each_edge_to_one_hand_only() -> None:
-    right, left = rb.hand_ranges(vd())
+    right, left = dist.hand_ranges(vd())
     assert right.lo[0] == pytest.approx(-0.8) and right.hi[0] == pytest.approx(0.9)
     assert left.lo[0] == pytest.approx(-0.9) and left.hi[0] == pytest.approx(0.8)
 
@@ -91,74 +88,75 @@ def test_the_hand_gap_of_eq_16_leaves_each_edge_to_one_hand_only() -> None:
 def test_the_start_of_table1_vd_has_nothing_stuck() -> None:
     for rule in (1, 2):
         for seed in range(5):
-            assert rb.Disturbances(vd(rule, seed), seed).initial_stuck == {}
+            assert dist.RandomDisturbances(vd(rule, seed), seed).initial_stuck == {}
 
 
 # --- the generator: seeded, realistic --------------------------------------------------------
 
 
 def test_disturbances_are_seeded_per_run_and_the_same_for_both_rules() -> None:
-    def plan(rule, seed):
-        return [(d.kind, d.due) for d in rb.Disturbances(vd(rule, seed), seed).plan]
+    def schedule(rule, seed):
+        return [(d.kind, d.due) for d in dist.RandomDisturbances(vd(rule, seed), seed).schedule]
 
-    assert plan(1, 3) == plan(1, 3) == plan(2, 3)
-    assert plan(1, 3) != plan(1, 4)
-    assert sorted(k for k, _ in plan(1, 3)) == sorted(rb.KINDS)
-    assert [d.kind for d in rb.Disturbances(vd(), 0, per_kind=2).plan].count("goal") == 2
-    for kind, due in plan(2, 5):
-        assert rb.WINDOW[kind][0] <= due <= rb.WINDOW[kind][1]
+    assert schedule(1, 3) == schedule(1, 3) == schedule(2, 3)
+    assert schedule(1, 3) != schedule(1, 4)
+    assert sorted(k for k, _ in schedule(1, 3)) == sorted(dist.KINDS)
+    twice = dist.RandomDisturbances(vd(), 0, per_kind=2).schedule
+    assert [d.kind for d in twice].count("goal") == 2
+    for kind, due in schedule(2, 5):
+        assert dist.WINDOW[kind][0] <= due <= dist.WINDOW[kind][1]
 
 
-def fire(d: rb.Disturbances, kind: str, w: World) -> list[Event]:
+def fire(d: dist.RandomDisturbances, kind: str, w: World) -> list[Event]:
     """Fire the planned disturbance of ``kind`` now (the others are put off)."""
-    for p in d.plan:
+    for p in d.schedule:
         p.next_look = w.t if p.kind == kind else 1e9
         p.give_up = max(p.give_up, w.t)
     return d(w)
 
 
-def assert_clear(sc: Scenario, d: rb.Disturbances, w: World, e: Event) -> None:
+def assert_clear(sc: Scenario, d: dist.RandomDisturbances, w: World, e: Event) -> None:
     j = [o.name for o in sc.task.objects].index(e.target)
     p = np.array(e.position)
     assert d.table.contains(p), "on the table top"
     others = np.delete(w.object_pos, j, axis=0)
-    assert np.abs(others - p).max(axis=1).min() >= sc.table.object_size + rb.CLEARANCE
+    assert np.abs(others - p).max(axis=1).min() >= sc.table.object_size + dist.CLEARANCE
     assert np.abs(w.hand_pos - p).max(axis=1).min() >= sc.task.objects[j].grasp_half_size
 
 
 @pytest.mark.parametrize("seed", range(12))
 def test_a_held_object_is_knocked_out_of_the_hand_to_a_free_place(seed) -> None:
     sc = vd(seed=seed)
-    d = rb.Disturbances(sc, seed)
+    d = dist.RandomDisturbances(sc, seed)
     grasp = np.zeros((2, sc.n_objects), bool)
     grasp[1, 4] = True
     w = world(sc, grasp=grasp)
     (e,) = fire(d, "held", w)
     assert e.kind == "move_object" and e.target == sc.task.objects[4].name and e.time == w.t
     moved = np.linalg.norm(np.array(e.position) - w.object_pos[4])
-    assert rb.KNOCK_DISTANCE[0] - 1e-9 <= moved <= rb.KNOCK_DISTANCE[1] + 1e-9
+    assert dist.KNOCK_DISTANCE[0] - 1e-9 <= moved <= dist.KNOCK_DISTANCE[1] + 1e-9
     assert_clear(sc, d, w, e)
     assert d.log[-1]["was_held"] and d.log[-1]["kind"] == "held"
 
 
 def test_a_held_knock_waits_for_a_held_object_then_gives_up() -> None:
     sc = vd()
-    d = rb.Disturbances(sc, 0, kinds=("held",))
+    d = dist.RandomDisturbances(sc, 0, kinds=("held",))
     due = d.next_time()
     assert d(world(sc, t=due)) == []  # nothing held: look again later
-    assert d.next_time() == pytest.approx(due + rb.LOOK_EVERY)
+    assert d.next_time() == pytest.approx(due + dist.LOOK_EVERY)
     t = due
     while d.next_time() is not None:
         t = d.next_time()
         assert d(world(sc, t=t)) == []
-    assert t <= due + rb.PATIENCE
+    assert t <= due + dist.PATIENCE
     assert "skipped" in d.log[-1] and d.log[-1]["kind"] == "held"
 
 
 @pytest.mark.parametrize("seed", range(12))
 def test_a_delivered_object_is_knocked_out_of_its_goal(seed) -> None:
     sc = vd(seed=seed)
-    d = rb.Disturbances(sc, seed)
+    d = dist.RandomDisturbances(sc, seed)
     pos = np.array([o.position for o in sc.task.objects])
     j = index_of_goal(sc, "blue")
     goal = Rect.of(sc.task.goals["blue"])
@@ -173,12 +171,12 @@ def test_a_delivered_object_is_knocked_out_of_its_goal(seed) -> None:
 @pytest.mark.parametrize("seed", range(12))
 def test_a_table_knock_lands_on_the_table_clear_and_stuck_is_decided_there(seed) -> None:
     sc = vd(seed=seed)
-    d = rb.Disturbances(sc, seed)
+    d = dist.RandomDisturbances(sc, seed)
     w = world(sc)
     (e,) = fire(d, "table", w)
     assert_clear(sc, d, w, e)
     j = [o.name for o in sc.task.objects].index(e.target)
-    reason = rb.stuck_reason(sc, sc.task.goals, j, np.array(e.position))
+    reason = dist.stuck_reason(sc, sc.task.goals, j, np.array(e.position))
     assert d.log[-1]["stuck"] == reason
     assert (j in d.stuck) == (reason is not None)
 
@@ -186,7 +184,7 @@ def test_a_table_knock_lands_on_the_table_clear_and_stuck_is_decided_there(seed)
 @pytest.mark.parametrize("seed", range(12))
 def test_a_goal_moves_inside_the_hand_range_clear_of_goals_and_other_objects(seed) -> None:
     sc = vd(seed=seed)
-    d = rb.Disturbances(sc, seed)
+    d = dist.RandomDisturbances(sc, seed)
     w = world(sc)
     (e,) = fire(d, "goal", w)
     assert e.kind == "move_goal" and e.target in sc.task.goals
@@ -194,25 +192,25 @@ def test_a_goal_moves_inside_the_hand_range_clear_of_goals_and_other_objects(see
     ws = Rect.of(sc.robot.workspace)
     assert np.all(new.lo >= ws.lo - 1e-9) and np.all(new.hi <= ws.hi + 1e-9)
     assert np.allclose(new.hi - new.lo, old.hi - old.lo, atol=1e-3)
-    assert np.abs((new.lo + new.hi - old.lo - old.hi) / 2).max() >= rb.GOAL_SHIFT - 1e-3
+    assert np.abs((new.lo + new.hi - old.lo - old.hi) / 2).max() >= dist.GOAL_SHIFT - 1e-3
     for g, b in sc.task.goals.items():
         if g != e.target:
-            assert not rb._overlap(new, Rect.of(b), 0.0)
+            assert not dist.overlap(new, Rect.of(b), 0.0)
     strangers = [j for j, o in enumerate(sc.task.objects) if o.goal != e.target]
     assert not new.contains(w.object_pos[strangers], tol=sc.table.object_size / 2).any()
 
 
 def test_a_goal_move_strands_an_object_thrown_beyond_the_hands_into_the_old_goal() -> None:
     sc = vd(rule=2)
-    d = rb.Disturbances(sc, 0)
+    d = dist.RandomDisturbances(sc, 0)
     j = index_of_goal(sc, "green")
     pos = np.array([o.position for o in sc.task.objects])
     pos[j] = [0.0, 1.1]  # thrown into green, beyond the hands' reach (y <= 0.95 with a grasp)
     event = Event(time=10.0, kind="move_goal", target="green", box=[-0.6, -0.25, 0.0, 0.3])
-    d._judge(event, world(sc, object_pos=pos))
+    d.judge(event, world(sc, object_pos=pos))
     assert d.stuck == {j: "beyond the hands' grasp range"}
     # moved back over it: delivered again, not stuck
-    d._judge(replace(event, box=sc.task.goals["green"]), world(sc, object_pos=pos))
+    d.judge(replace(event, box=sc.task.goals["green"]), world(sc, object_pos=pos))
     assert d.stuck == {}
 
 
