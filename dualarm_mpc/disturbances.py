@@ -48,24 +48,20 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.framework import Context
 
 from dualarm_mpc.diagram import DualArm
-from dualarm_mpc.mld import REST_SPEED, Rect, delivered, in_goal, target_box
+from dualarm_mpc.mld import REST_SPEED, Rect, State, delivered, in_goal, target_box
 from dualarm_mpc.scenario import Event, Scenario
 from dualarm_mpc.station import table_extent
-from dualarm_mpc.systems.state_estimator import split_measured_state
 
 # --- what a disturbance sees, and what it may do ---------------------------------------------
 
 
 @dataclass(frozen=True)
 class World:
-    """What a :class:`Disturbance` sees when it looks: the measured hands and objects, what the
-    gripper holds now, and the goals and deliveries as the planner last counted them."""
+    """What a :class:`Disturbance` sees when it looks: the measured state (hands, objects, what
+    the gripper holds now), and the goals and deliveries as the planner last counted them."""
 
     t: float
-    hand_pos: np.ndarray  # (2, 2)
-    object_pos: np.ndarray  # (N, 2)
-    object_vel: np.ndarray  # (N, 2)
-    grasp: np.ndarray  # (2, N) bool: attached in the gripper now
+    state: State  # measured
     goals: dict[str, list[float]]
     delivered: np.ndarray  # (N,) bool: resting in its goal at the planner's last replan
 
@@ -73,13 +69,12 @@ class World:
     def observe(cls, dual: DualArm, context: Context) -> World:
         """The world of the run ``dual`` at the root ``context``'s time."""
         estimator = dual.stack.estimator
-        m = split_measured_state(estimator.get_measured_state_output_port().Eval(
+        measured = State.from_vector(estimator.get_measured_state_output_port().Eval(
             estimator.GetMyContextFromRoot(context)), dual.station.n_objects)
         s = dual.planner.latest_state(dual.planner.GetMyContextFromRoot(context))
         goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
-        return cls(t=context.get_time(), hand_pos=m["hand_pos"].copy(),
-                   object_pos=m["object_pos"].copy(), object_vel=m["object_vel"].copy(),
-                   grasp=m["grasp"] > 0.5, goals={k: list(v) for k, v in goals.items()},
+        return cls(t=context.get_time(), state=measured,
+                   goals={k: list(v) for k, v in goals.items()},
                    delivered=np.array([d is not None for d in s.delivered_time], bool))
 
 
@@ -241,14 +236,14 @@ class RandomDisturbances:
             j = names.index(event.target)
             reason = stuck_reason(sc, world.goals, j, event.position)
             self._set_stuck(j, reason)
-            return {"from": [round(float(v), 4) for v in world.object_pos[j]],
-                    "to": event.position, "was_held": bool(world.grasp[:, j].any()),
+            return {"from": [round(float(v), 4) for v in world.state.object_pos[j]],
+                    "to": event.position, "was_held": bool(world.state.grasp[:, j].any()),
                     "stuck": reason}
         goals = {**world.goals, event.target: event.box}
         stuck = {}
         for j, o in enumerate(sc.task.objects):
             if o.goal == event.target:
-                reason = stuck_reason(sc, goals, j, world.object_pos[j])
+                reason = stuck_reason(sc, goals, j, world.state.object_pos[j])
                 self._set_stuck(j, reason)
                 if reason:
                     stuck[o.name] = reason
@@ -257,7 +252,7 @@ class RandomDisturbances:
     # one per kind: (event, log entry) — (None, None) to wait, (None, entry) to skip
 
     def _held(self, d: Scheduled, world: World):
-        held = np.flatnonzero(world.grasp.any(axis=0))
+        held = np.flatnonzero(world.state.grasp.any(axis=0))
         if held.size == 0:
             return None, None
         j = int(d.rng.choice(held))
@@ -297,7 +292,7 @@ class RandomDisturbances:
                 continue
             if any(overlap(new, b, CLEARANCE) for b in others):
                 continue
-            if new.contains(world.object_pos[strangers], tol=sc.table.object_size / 2).any():
+            if new.contains(world.state.object_pos[strangers], tol=sc.table.object_size / 2).any():
                 continue
             box = [round(float(v), 4) for v in new.bounds()]
             return Event(time=round(world.t, 3), kind="move_goal", target=name, box=box), {
@@ -308,17 +303,17 @@ class RandomDisturbances:
 
     def _resting(self, world: World) -> np.ndarray:
         sc = self.scenario
-        resting = np.array([delivered(world.object_pos[j], world.object_vel[j],
+        resting = np.array([delivered(world.state.object_pos[j], world.state.object_vel[j],
                                       world.goals[o.goal], REST_SPEED)
                             for j, o in enumerate(sc.task.objects)])
-        return np.flatnonzero(resting & ~world.grasp.any(axis=0))
+        return np.flatnonzero(resting & ~world.state.grasp.any(axis=0))
 
     def _knock(self, d: Scheduled, world: World, j: int, accept: Callable[[np.ndarray], bool]):
         name = self.scenario.task.objects[j].name
         for _ in range(TRIES):
             angle = d.rng.uniform(0.0, 2 * math.pi)
             distance = d.rng.uniform(*KNOCK_DISTANCE)
-            p = world.object_pos[j] + distance * np.array([math.cos(angle), math.sin(angle)])
+            p = world.state.object_pos[j] + distance * np.array([math.cos(angle), math.sin(angle)])
             if accept(p) and self._free(p, j, world):
                 return self._move(world, j, p), {"target": name}
         return None, {"target": name, "skipped": "no free place"}
@@ -328,12 +323,12 @@ class RandomDisturbances:
         sc = self.scenario
         if not self.table.contains(p):
             return False
-        others = np.delete(world.object_pos, j, axis=0)
+        others = np.delete(world.state.object_pos, j, axis=0)
         size = sc.table.object_size
         if others.size and (np.abs(others - p).max(axis=1) < size + CLEARANCE).any():
             return False
         reach = sc.task.objects[j].grasp_half_size + size / 2 + CLEARANCE
-        return not (np.abs(world.hand_pos - p).max(axis=1) < reach).any()
+        return not (np.abs(world.state.hand_pos - p).max(axis=1) < reach).any()
 
     def _move(self, world: World, j: int, p: np.ndarray) -> Event:
         position = [round(float(v), 4) for v in p]

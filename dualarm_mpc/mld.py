@@ -87,7 +87,8 @@ def delivered(pos: np.ndarray, vel: np.ndarray, box: list[float] | Rect,
 
 @dataclass(frozen=True)
 class State:
-    """The MLD state at one step (and the grasps in force), planar."""
+    """The MLD state at one step (and the grasps in force), planar: the model's, a plan's, and
+    the robot's as measured (:meth:`from_vector`, the StateEstimator's ``measured_state``)."""
 
     hand_pos: np.ndarray  # (2, 2)
     hand_vel: np.ndarray  # (2, 2)
@@ -115,6 +116,31 @@ class State:
     @staticmethod
     def last(trajectory: Trajectory) -> State:
         return State.at(trajectory, -1)
+
+    @staticmethod
+    def size(n_objects: int) -> int:
+        """The length of :meth:`vector`: 8 + 6N."""
+        return 4 * N_HANDS + 6 * n_objects
+
+    def vector(self) -> np.ndarray:
+        """The state as one vector: hand_pos (4: x0, y0, x1, y1), hand_vel (4), object_pos (2N:
+        x_j, y_j), object_vel (2N), grasp (2N, row-major [i][j])."""
+        return np.concatenate([self.hand_pos.ravel(), self.hand_vel.ravel(),
+                               self.object_pos.ravel(), self.object_vel.ravel(),
+                               np.asarray(self.grasp, float).ravel()])
+
+    @staticmethod
+    def from_vector(x: np.ndarray, n_objects: int) -> State:
+        """The state of :meth:`vector` ``x`` (copied; the grasps rounded to 0/1)."""
+        n = n_objects
+        x = np.array(x, dtype=float)
+        if x.shape != (State.size(n),):
+            raise ValueError(f"state vector: expected {State.size(n)} values, got {x.shape}")
+        h = 2 * N_HANDS
+        return State(hand_pos=x[:h].reshape(N_HANDS, 2), hand_vel=x[h:2 * h].reshape(N_HANDS, 2),
+                     object_pos=x[2 * h:2 * h + 2 * n].reshape(n, 2),
+                     object_vel=x[2 * h + 2 * n:2 * h + 4 * n].reshape(n, 2),
+                     grasp=x[2 * h + 4 * n:].reshape(N_HANDS, n).round().astype(int))
 
     def select(self, objects: list[int]) -> State:
         """The state restricted to the given objects (hands unchanged)."""

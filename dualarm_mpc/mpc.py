@@ -88,18 +88,6 @@ Goals = dict[str, list[float]]  # goal name → box [xmin, xmax, ymin, ymax]
 
 
 @dataclass(frozen=True)
-class Measured:
-    """What the robot measures (the StateEstimator's vector, split): hands (2, 2), objects
-    (N, 2), and what the gripper holds now (2, N), planar."""
-
-    hand_pos: np.ndarray
-    hand_vel: np.ndarray
-    object_pos: np.ndarray
-    object_vel: np.ndarray
-    grasp: np.ndarray
-
-
-@dataclass(frozen=True)
 class Replan:
     """One replan, as recorded."""
 
@@ -176,7 +164,7 @@ class Replanner:
         if self._worker is not None:
             self._worker.shutdown(wait=False, cancel_futures=True)
 
-    def step(self, t: float, state: MpcState, measured: Measured,
+    def step(self, t: float, state: MpcState, measured: State,
              goals: Goals) -> tuple[MpcState, Replan]:
         """The replan at time ``t``: the new state (its plan starts at ``t``) and the record."""
         wall0 = time.perf_counter()
@@ -190,7 +178,7 @@ class Replanner:
 
     # -- the replan ---------------------------------------------------------------------------
 
-    def _replan(self, t: float, s: MpcState, measured: Measured, goals: Goals,
+    def _replan(self, t: float, s: MpcState, measured: State, goals: Goals,
                 wall0: float) -> tuple[MpcState, Replan]:
         """Lockstep: solve to the end. Real time: wait at most the budget for a plan; past it,
         follow the plan in force and let the search go on in the background while the robot
@@ -230,7 +218,7 @@ class Replanner:
             self.search.job.options.interrupt.set()
             self.search = None
 
-    def _prepare(self, t: float, s: MpcState, measured: Measured, goals: Goals, wall0: float):
+    def _prepare(self, t: float, s: MpcState, measured: State, goals: Goals, wall0: float):
         """What the replan at ``t`` must solve (a :class:`_Job`), or the new state and record at
         once when nothing is left to solve (every object delivered, or the rest out of reach)."""
         base = self._scenario
@@ -346,14 +334,14 @@ class Replanner:
         holds = atom_trace(job.scenario, traj, k, traj.steps)
         return evaluate(job.spec.task(), holds, traj.steps - k)
 
-    def _still(self, job: _Job, m: Measured) -> bool:
+    def _still(self, job: _Job, m: State) -> bool:
         """Whether the robot and the objects still rest where the search carried over started."""
         pos = np.concatenate([m.hand_pos, m.object_pos])
         was = np.concatenate([job.state.hand_pos, job.state.object_pos])
         speed = np.abs(np.concatenate([m.hand_vel, m.object_vel])).max(initial=0)
         return bool(np.abs(pos - was).max(initial=0) < SNAP_POSITION and speed < SNAP_VELOCITY)
 
-    def _committed_state(self, t: float, s: MpcState, m: Measured) -> State:
+    def _committed_state(self, t: float, s: MpcState, m: State) -> State:
         """The state a replan starts from: the measured one, with the grasp the previous plan
         committed to for [t, t + Δt).
 
@@ -449,7 +437,7 @@ def _stops_in_goal(sc: Scenario, pos: np.ndarray, vel) -> np.ndarray:
                      for j, o in enumerate(sc.task.objects)])
 
 
-def _arriving(sc: Scenario, state: State, measured: Measured) -> np.ndarray:
+def _arriving(sc: Scenario, state: State, measured: State) -> np.ndarray:
     """Unheld moving objects whose one-step slide ends in their goals, in the committed state
     or in the measured one: slower than ``STILL_SPEED`` the committed state has it at rest,
     and one sliding in from just outside would look undelivered for a replan (measured:
@@ -462,7 +450,7 @@ def _arriving(sc: Scenario, state: State, measured: Measured) -> np.ndarray:
     return arriving & ~state.grasp.any(axis=0)
 
 
-def _resting(sc: Scenario, state: State, released: np.ndarray, measured: Measured) -> np.ndarray:
+def _resting(sc: Scenario, state: State, released: np.ndarray, measured: State) -> np.ndarray:
     """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
     counts where ``released`` (N,): the hand has nothing left to do with it and lets go when it
     moves on. Where the measured object stops counts too (before slow speeds are taken as

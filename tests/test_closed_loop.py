@@ -37,7 +37,7 @@ from scenes import ONE_ON_THE_ROBOT, yaml_text
 
 from dualarm_mpc.cli import main
 from dualarm_mpc.closed_loop import Summary, on_robot, simulate
-from dualarm_mpc.mld import REST_SPEED  # m/s: "at rest" on the robot, as the summary counts it
+from dualarm_mpc.mld import REST_SPEED, State  # REST_SPEED: "at rest" as the summary counts it
 from dualarm_mpc.recording import is_self_contained
 from dualarm_mpc.scenario import (
     Event,
@@ -49,7 +49,6 @@ from dualarm_mpc.scenario import (
     load_scenario,
 )
 from dualarm_mpc.sequential import solve_horizon
-from dualarm_mpc.systems.state_estimator import split_measured_state
 
 pytestmark = pytest.mark.slow  # closed-loop simulations in Drake, seconds to minutes each
 
@@ -129,7 +128,7 @@ def run(scenario: Scenario, duration: float | None = None, **kwargs) -> tuple[Su
             estimator.GetMyContextFromRoot(root_context))
         trace.t.append(root_context.get_time())
         trace.hand_pos.append(
-            split_measured_state(measured, dual.station.n_objects)["hand_pos"].copy())
+            State.from_vector(measured, dual.station.n_objects).hand_pos)
 
     summary = simulate(scenario, duration, observe=observe, **kwargs)
     assert trace.t, "observe was never called"

@@ -13,7 +13,7 @@ import pytest
 from dualarm_mpc import disturbances as dist
 from dualarm_mpc.closed_loop import on_robot, simulate
 from dualarm_mpc.disturbances import World
-from dualarm_mpc.mld import Rect
+from dualarm_mpc.mld import Rect, State
 from dualarm_mpc.scenario import (
     Event,
     ObjectSpec,
@@ -34,10 +34,11 @@ def world(sc: Scenario, t: float = 10.0, grasp: np.ndarray | None = None,
           object_pos: np.ndarray | None = None, goals: dict | None = None) -> World:
     n = sc.n_objects
     pos = np.array([o.position for o in sc.task.objects]) if object_pos is None else object_pos
-    return World(t=t, hand_pos=np.array(sc.robot.hand_start, float), object_pos=pos,
-                 object_vel=np.zeros((n, 2)),
-                 grasp=np.zeros((2, n), bool) if grasp is None else grasp,
-                 goals=dict(sc.task.goals) if goals is None else goals, delivered=np.zeros(n, bool))
+    measured = State(hand_pos=np.array(sc.robot.hand_start, float), hand_vel=np.zeros((2, 2)),
+                     object_pos=pos, object_vel=np.zeros((n, 2)),
+                     grasp=np.zeros((2, n), int) if grasp is None else grasp)
+    return World(t=t, state=measured, goals=dict(sc.task.goals) if goals is None else goals,
+                 delivered=np.zeros(n, bool))
 
 
 # --- stuck: from the model's bounds -----------------------------------------------------------
@@ -119,21 +120,21 @@ def assert_clear(sc: Scenario, d: dist.RandomDisturbances, w: World, e: Event) -
     j = [o.name for o in sc.task.objects].index(e.target)
     p = np.array(e.position)
     assert d.table.contains(p), "on the table top"
-    others = np.delete(w.object_pos, j, axis=0)
+    others = np.delete(w.state.object_pos, j, axis=0)
     assert np.abs(others - p).max(axis=1).min() >= sc.table.object_size + dist.CLEARANCE
-    assert np.abs(w.hand_pos - p).max(axis=1).min() >= sc.task.objects[j].grasp_half_size
+    assert np.abs(w.state.hand_pos - p).max(axis=1).min() >= sc.task.objects[j].grasp_half_size
 
 
 @pytest.mark.parametrize("seed", range(12))
 def test_a_held_object_is_knocked_out_of_the_hand_to_a_free_place(seed) -> None:
     sc = vd(seed=seed)
     d = dist.RandomDisturbances(sc, seed)
-    grasp = np.zeros((2, sc.n_objects), bool)
+    grasp = np.zeros((2, sc.n_objects), int)
     grasp[1, 4] = True
     w = world(sc, grasp=grasp)
     (e,) = fire(d, "held", w)
     assert e.kind == "move_object" and e.target == sc.task.objects[4].name and e.time == w.t
-    moved = np.linalg.norm(np.array(e.position) - w.object_pos[4])
+    moved = np.linalg.norm(np.array(e.position) - w.state.object_pos[4])
     assert dist.KNOCK_DISTANCE[0] - 1e-9 <= moved <= dist.KNOCK_DISTANCE[1] + 1e-9
     assert_clear(sc, d, w, e)
     assert d.log[-1]["was_held"] and d.log[-1]["kind"] == "held"
@@ -197,7 +198,7 @@ def test_a_goal_moves_inside_the_hand_range_clear_of_goals_and_other_objects(see
         if g != e.target:
             assert not dist.overlap(new, Rect.of(b), 0.0)
     strangers = [j for j, o in enumerate(sc.task.objects) if o.goal != e.target]
-    assert not new.contains(w.object_pos[strangers], tol=sc.table.object_size / 2).any()
+    assert not new.contains(w.state.object_pos[strangers], tol=sc.table.object_size / 2).any()
 
 
 def test_a_goal_move_strands_an_object_thrown_beyond_the_hands_into_the_old_goal() -> None:
@@ -227,10 +228,10 @@ class KnockWhenHeld:
         return self.t if len(self.seen) < 2 else None
 
     def __call__(self, w: World) -> list[Event]:
-        if not self.seen and not w.grasp[:, 0].any():
+        if not self.seen and not w.state.grasp[:, 0].any():
             self.t += 0.25
             return []
-        self.seen.append((w.t, w.grasp[:, 0].any(), w.object_pos[0].copy()))
+        self.seen.append((w.t, w.state.grasp[:, 0].any(), w.state.object_pos[0].copy()))
         self.t = w.t + 0.3
         if len(self.seen) == 1:
             return [Event(time=w.t, kind="move_object", target="a", position=self.to)]

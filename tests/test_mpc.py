@@ -11,7 +11,7 @@ import pytest
 from scenes import two_objects
 
 from dualarm_mpc.mld import REST_SPEED, State, in_goal
-from dualarm_mpc.mpc import SEARCHING, STILL_SPEED, Measured, MpcState, Replanner
+from dualarm_mpc.mpc import SEARCHING, STILL_SPEED, MpcState, Replanner
 from dualarm_mpc.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
 from dualarm_mpc.sequential import solve_horizon
 from dualarm_mpc.solver import Status
@@ -28,13 +28,13 @@ def scenario(**overrides) -> Scenario:
     return apply_overrides(s, {"delivery": "rest", "goal_margin": 0.03, **overrides})
 
 
-def at_rest(sc: Scenario, object_pos=None) -> Measured:
+def at_rest(sc: Scenario, object_pos=None) -> State:
     """The robot at its start, everything at rest, the gripper empty."""
     objects = sc.task.objects
     pos = np.array([o.position for o in objects] if object_pos is None else object_pos, float)
     n = len(pos)
-    return Measured(hand_pos=np.array(sc.robot.hand_start, float), hand_vel=np.zeros((2, 2)),
-                    object_pos=pos, object_vel=np.zeros((n, 2)), grasp=np.zeros((2, n)))
+    return State(hand_pos=np.array(sc.robot.hand_start, float), hand_vel=np.zeros((2, 2)),
+                 object_pos=pos, object_vel=np.zeros((n, 2)), grasp=np.zeros((2, n), int))
 
 
 def test_a_replan_from_rest_returns_a_plan_that_starts_now_and_its_record() -> None:
@@ -240,8 +240,8 @@ def test_an_object_held_still_in_its_goal_by_the_plan_in_force_is_delivered() ->
     obj = np.array([[-0.1, 0.88 - 9e-8]])  # the target box starts at y = 0.88 (goal margin)
     grasp = np.array([[1], [0]])
     s = _in_force(sc, obj, step_objects=(0,), hand=hand, grasp=grasp)
-    measured = Measured(hand_pos=hand, hand_vel=np.zeros((2, 2)), object_pos=obj,
-                        object_vel=np.zeros((1, 2)), grasp=grasp.astype(float))
+    measured = State(hand_pos=hand, hand_vel=np.zeros((2, 2)), object_pos=obj,
+                     object_vel=np.zeros((1, 2)), grasp=grasp)
     core = Replanner(sc)
     s, r = core.step(1.0, s, measured, sc.task.goals)
     core.close()
@@ -269,12 +269,9 @@ def test_hands_measured_a_hair_inside_the_hand_gap_are_planned_from_eq_16() -> N
 # --- a replan on a proven plan keeps it (the principle of optimality) ---------------------------
 
 
-def on_plan(s: MpcState, k: int) -> Measured:
+def on_plan(s: MpcState, k: int) -> State:
     """What the robot measures when it is exactly where the plan in force puts it at step k."""
-    x = State.at(s.plan.trajectory, k)
-    return Measured(hand_pos=x.hand_pos.copy(), hand_vel=x.hand_vel.copy(),
-                    object_pos=x.object_pos.copy(), object_vel=x.object_vel.copy(),
-                    grasp=x.grasp.astype(float))
+    return State.at(s.plan.trajectory, k)
 
 
 def counting_solves(calls: list):

@@ -13,6 +13,7 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
+from dualarm_mpc.mld import State
 from dualarm_mpc.plan import TimedTrajectory, Trajectory
 from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
 from dualarm_mpc.scenario import ObjectSpec, Scenario, Table, Task, load_scenario
@@ -36,11 +37,7 @@ from dualarm_mpc.systems.interpolator import (
     sample_grasp,
     sample_hands,
 )
-from dualarm_mpc.systems.state_estimator import (
-    StateEstimator,
-    measured_state_size,
-    split_measured_state,
-)
+from dualarm_mpc.systems.state_estimator import StateEstimator
 
 G = 9.81
 GRASP_HEIGHT = 0.025
@@ -87,13 +84,13 @@ class Rig:
         self.simulator.Initialize()
         self.n = scenario.n_objects
 
-    def measured(self) -> dict[str, np.ndarray]:
+    def measured(self) -> State:
         estimator = self.stack.estimator
         context = estimator.GetMyContextFromRoot(self.simulator.get_context())
         x = estimator.get_measured_state_output_port().Eval(context)
-        return split_measured_state(x, self.n)
+        return State.from_vector(x, self.n)
 
-    def advance(self, t: float) -> dict[str, np.ndarray]:
+    def advance(self, t: float) -> State:
         self.simulator.AdvanceTo(t)
         return self.measured()
 
@@ -316,7 +313,7 @@ def test_gripper_and_estimator_shapes():
     assert estimator.get_body_poses_input_port().get_name() == "body_poses"
     assert estimator.get_grasp_input_port().size() == 2 * n
     assert estimator.get_measured_state_output_port().get_name() == "measured_state"
-    assert estimator.get_measured_state_output_port().size() == measured_state_size(n) == 8 + 6 * n
+    assert estimator.get_measured_state_output_port().size() == State.size(n) == 8 + 6 * n
 
 
 # --- interpolator and controller semantics -----------------------------------------------------
@@ -457,11 +454,11 @@ def test_measured_state_at_rest_matches_the_scenario():
     scenario = load_scenario("table1_vc")
     rig = Rig(scenario, empty_plan(scenario.n_objects, np.array(scenario.robot.hand_start)))
     x = rig.advance(0.2)
-    np.testing.assert_allclose(x["hand_pos"], scenario.robot.hand_start, atol=1e-4)
-    np.testing.assert_allclose(x["object_pos"], [o.position for o in scenario.task.objects],
+    np.testing.assert_allclose(x.hand_pos, scenario.robot.hand_start, atol=1e-4)
+    np.testing.assert_allclose(x.object_pos, [o.position for o in scenario.task.objects],
                                atol=1e-4)
-    np.testing.assert_allclose(x["object_vel"], 0.0, atol=1e-3)
-    np.testing.assert_array_equal(x["grasp"], 0.0)
+    np.testing.assert_allclose(x.object_vel, 0.0, atol=1e-3)
+    np.testing.assert_array_equal(x.grasp, 0.0)
 
 
 @pytest.mark.slow  # seconds of plant simulation
@@ -473,12 +470,12 @@ def test_pick_drag_and_release_at_rest():
     plan = right_hand_plan([*nodes, (b, [0, 0]), (b, [0, 0])], [0, 1, 1, 1, 0, 0])
     rig = Rig(one_object_scenario(), plan)
     held = rig.advance(2.5)
-    assert held["grasp"][0, 0] == 1 and held["grasp"][1, 0] == 0
-    np.testing.assert_allclose(held["object_pos"][0], held["hand_pos"][0], atol=1e-3)
+    assert held.grasp[0, 0] == 1 and held.grasp[1, 0] == 0
+    np.testing.assert_allclose(held.object_pos[0], held.hand_pos[0], atol=1e-3)
     x = rig.advance(6.5)
-    assert x["grasp"][0, 0] == 0
-    np.testing.assert_allclose(x["object_pos"][0], b, atol=0.01)
-    np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
+    assert x.grasp[0, 0] == 0
+    np.testing.assert_allclose(x.object_pos[0], b, atol=0.01)
+    np.testing.assert_allclose(x.object_vel[0], 0.0, atol=1e-3)
 
 
 def _throw(scenario: Scenario, v: float, until: float = 8.0):
@@ -495,9 +492,9 @@ def _throw(scenario: Scenario, v: float, until: float = 8.0):
     ]
     rig = Rig(scenario, right_hand_plan(nodes, [0, 1, 1, 0, 0, 0]))
     at_release = rig.advance(3.0)
-    assert at_release["grasp"][0, 0] == 1
-    assert np.linalg.norm(at_release["object_vel"][0]) == pytest.approx(v, rel=0.02)
-    assert rig.advance(3.01)["grasp"][0, 0] == 0
+    assert at_release.grasp[0, 0] == 1
+    assert np.linalg.norm(at_release.object_vel[0]) == pytest.approx(v, rel=0.02)
+    assert rig.advance(3.01).grasp[0, 0] == 0
     return at_release, rig.advance(until)
 
 
@@ -505,10 +502,10 @@ def _throw(scenario: Scenario, v: float, until: float = 8.0):
 def test_throw_with_coulomb_friction_slides_v2_over_2_mu_g_and_stops():
     mu, v = 0.02, 0.3
     at_release, x = _throw(one_object_scenario(mu), v)
-    slide = x["object_pos"][0] - at_release["object_pos"][0]
+    slide = x.object_pos[0] - at_release.object_pos[0]
     assert slide[1] == pytest.approx(v**2 / (2 * mu * G), rel=0.05)
     assert abs(slide[0]) < 2e-3
-    np.testing.assert_allclose(x["object_vel"][0], 0.0, atol=1e-3)
+    np.testing.assert_allclose(x.object_vel[0], 0.0, atol=1e-3)
 
 
 @pytest.mark.slow  # seconds of plant simulation
@@ -517,10 +514,10 @@ def test_throw_on_the_viscous_table_slides_v_dt_at_any_speed(v):
     """The table's drag (τ = Δt = 1 s, no Coulomb friction): the slide is v·Δt, the planner's
     one-step slide, whatever the release speed (to 1 % once the object has come to rest)."""
     at_release, x = _throw(one_object_scenario(0.0, slide_time_constant=1.0), v)
-    slide = x["object_pos"][0] - at_release["object_pos"][0]
+    slide = x.object_pos[0] - at_release.object_pos[0]
     assert slide[1] == pytest.approx(v * 1.0, rel=0.01)
     assert abs(slide[0]) < 2e-3
-    assert np.linalg.norm(x["object_vel"][0]) < 0.01
+    assert np.linalg.norm(x.object_vel[0]) < 0.01
 
 
 @pytest.mark.slow  # seconds of plant simulation
@@ -529,8 +526,8 @@ def test_a_thrown_object_on_the_viscous_table_comes_to_rest_for_good():
     gripper stops it, so 12 s after the throw it stands still, the slide still v·Δt."""
     v = 0.4
     at_release, x = _throw(one_object_scenario(0.0, slide_time_constant=1.0), v, until=15.0)
-    assert np.linalg.norm(x["object_vel"][0]) < REST_NOISE
-    slide = x["object_pos"][0] - at_release["object_pos"][0]
+    assert np.linalg.norm(x.object_vel[0]) < REST_NOISE
+    slide = x.object_pos[0] - at_release.object_pos[0]
     assert slide[1] == pytest.approx(v * 1.0, rel=0.01)
 
 
@@ -539,8 +536,8 @@ def test_gripper_does_not_grab_an_object_out_of_reach():
     plan = right_hand_plan([([0.1, 0.0], [0, 0]), ([0.1, 0.0], [0, 0])], [1, 1])
     rig = Rig(one_object_scenario(), plan)
     x = rig.advance(1.0)
-    np.testing.assert_array_equal(x["grasp"], 0.0)
-    np.testing.assert_allclose(x["object_pos"][0], [0.1, 0.1], atol=1e-4)
+    np.testing.assert_array_equal(x.grasp, 0.0)
+    np.testing.assert_allclose(x.object_pos[0], [0.1, 0.1], atol=1e-4)
 
 
 # --- the closed loop, short (the one in make test-fast) ----------------------------------------
@@ -567,7 +564,7 @@ def test_the_closed_loop_in_lockstep_applies_each_plan_one_latency_after_its_rep
         planner, estimator = dual.planner, dual.stack.estimator
         plan = planner.mpc_state(planner.GetMyContextFromRoot(root)).plan
         x = estimator.get_measured_state_output_port().Eval(estimator.GetMyContextFromRoot(root))
-        speed = np.abs(split_measured_state(x, 1)["hand_vel"]).max()
+        speed = np.abs(State.from_vector(x, 1).hand_vel).max()
         seen.append((root.get_time(), plan.trajectory.steps, speed))
 
     summary = simulate(sc, duration=1.6, observe=observe)

@@ -15,9 +15,9 @@ from __future__ import annotations
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.mpc import Measured, MpcState, Replan, Replanner, Solve
+from dualarm_mpc.mld import State
+from dualarm_mpc.mpc import MpcState, Replan, Replanner, Solve
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.systems.state_estimator import split_measured_state
 
 __all__ = ["MpcPlanner", "MpcState", "Replan"]
 
@@ -35,10 +35,12 @@ class MpcPlanner(LeafSystem):
         - plan
         - replan
 
-    ``measured_state`` (8 + 6N): the StateEstimator's layout. ``goals`` (abstract): dict goal
-    name → box [xmin, xmax, ymin, ymax], read at every replan (a moved goal counts from the next
-    one). ``plan``: the :class:`~dualarm_mpc.plan.TimedTrajectory` in force (abstract). ``replan``:
-    the last replan's :class:`~dualarm_mpc.mpc.Replan` (abstract; None before the first).
+    ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.mld.State` as
+    :meth:`~dualarm_mpc.mld.State.vector` lays it out (the StateEstimator's output). ``goals``
+    (abstract): dict goal name → box [xmin, xmax, ymin, ymax], read at every replan (a moved goal
+    counts from the next one). ``plan``: the :class:`~dualarm_mpc.plan.TimedTrajectory` in force
+    (abstract). ``replan``: the last replan's :class:`~dualarm_mpc.mpc.Replan` (abstract; None
+    before the first).
     ``solve`` replaces one horizon's solve (``sequential.solve_horizon``), e.g. to inject failures.
     """
 
@@ -56,7 +58,7 @@ class MpcPlanner(LeafSystem):
         self._pending = self.DeclareAbstractState(AbstractValue.Make(None))
         dt, self.latency_s = scenario.robot.dt, scenario.solver.replan_latency_s
         self.realtime = self._replanner.realtime
-        self._measured = self.DeclareVectorInputPort("measured_state", 8 + 6 * self._n)
+        self._measured = self.DeclareVectorInputPort("measured_state", State.size(self._n))
         goals = {k: list(v) for k, v in scenario.task.goals.items()}
         self._goals = self.DeclareAbstractInputPort("goals", AbstractValue.Make(goals))
         self._plan = self.DeclareAbstractOutputPort(
@@ -116,8 +118,7 @@ class MpcPlanner(LeafSystem):
         """The replan at t, from the state in force at t; its state takes over at t + latency."""
         t = context.get_time()
         current, _ = self._in_force(context)
-        m = split_measured_state(self._measured.Eval(context), self._n)
-        measured = Measured(**{k: v.copy() for k, v in m.items()})
+        measured = State.from_vector(self._measured.Eval(context), self._n)
         new, replan = self._replanner.step(t, current, measured, self._goals.Eval(context))
         pending = None if self.latency_s == 0 else (t + self.latency_s, new)
         state.get_mutable_abstract_state(self._state).set_value(new if pending is None

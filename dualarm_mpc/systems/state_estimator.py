@@ -1,6 +1,7 @@
 """State estimator: reads the plant into the planner's measured state vector (planar x, y only).
 
-The "estimate" is exact (the simulated plant is observed perfectly); its job is the layout.
+The "estimate" is exact (the simulated plant is observed perfectly); the layout is
+:meth:`dualarm_mpc.mld.State.vector`'s.
 """
 
 from __future__ import annotations
@@ -14,26 +15,7 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import LeafSystem
 
-
-def measured_state_size(n_objects: int) -> int:
-    """8 + 6N: hand positions and velocities, object positions and velocities, grasp."""
-    return 8 + 6 * n_objects
-
-
-def split_measured_state(x: np.ndarray, n_objects: int) -> dict[str, np.ndarray]:
-    """The measured state vector as arrays: hand_pos, hand_vel (2, 2), object_pos, object_vel
-    (N, 2), grasp (2, N)."""
-    n = n_objects
-    x = np.asarray(x, dtype=float)
-    if x.shape != (measured_state_size(n),):
-        raise ValueError(f"measured state: expected {measured_state_size(n)} values, got {x.shape}")
-    return {
-        "hand_pos": x[0:4].reshape(2, 2),
-        "hand_vel": x[4:8].reshape(2, 2),
-        "object_pos": x[8 : 8 + 2 * n].reshape(n, 2),
-        "object_vel": x[8 + 2 * n : 8 + 4 * n].reshape(n, 2),
-        "grasp": x[8 + 4 * n : 8 + 6 * n].reshape(2, n),
-    }
+from dualarm_mpc.mld import State
 
 
 class StateEstimator(LeafSystem):
@@ -52,9 +34,10 @@ class StateEstimator(LeafSystem):
     ``body_poses`` / ``body_spatial_velocities``: the plant's outputs of the same names (the
     plant's own kinematics, shared with the Gripper; no scratch context is needed).
     ``grasp`` (2N): the Gripper's ``grasp`` output.
-    ``measured_state`` (8 + 6N) = [hand_pos (4: x0, y0, x1, y1), hand_vel (4), object_pos (2N:
-    x_j, y_j), object_vel (2N), grasp (2N, row-major [i][j])]; hand i = 0 is the right hand,
-    1 the left, measured at the end-effector body's origin.
+    ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.mld.State` as
+    :meth:`~dualarm_mpc.mld.State.vector` lays it out (hand_pos, hand_vel, object_pos,
+    object_vel, grasp); hand i = 0 is the right hand, 1 the left, measured at the end-effector
+    body's origin.
     """
 
     def __init__(self, hand_bodies: Sequence[RigidBody], object_bodies: Sequence[RigidBody]):
@@ -71,7 +54,7 @@ class StateEstimator(LeafSystem):
         )
         self._grasp = self.DeclareVectorInputPort("grasp", 2 * self._n)
         self._measured_state = self.DeclareVectorOutputPort(
-            "measured_state", measured_state_size(self._n), self._calc_measured_state
+            "measured_state", State.size(self._n), self._calc_measured_state
         )
 
     def get_body_poses_input_port(self):
@@ -91,14 +74,6 @@ class StateEstimator(LeafSystem):
         velocities = self._body_velocities.Eval(context)
         p = np.array([poses[b].translation()[:2] for b in self._bodies])
         v = np.array([velocities[b].translational()[:2] for b in self._bodies])
-        output.SetFromVector(
-            np.concatenate(
-                [
-                    p[:2].reshape(-1),
-                    v[:2].reshape(-1),
-                    p[2:].reshape(-1),
-                    v[2:].reshape(-1),
-                    self._grasp.Eval(context),
-                ]
-            )
-        )
+        measured = State(hand_pos=p[:2], hand_vel=v[:2], object_pos=p[2:], object_vel=v[2:],
+                         grasp=self._grasp.Eval(context).reshape(2, self._n))
+        output.SetFromVector(measured.vector())
