@@ -44,7 +44,7 @@ from benchlib import (
 from solvers import METHODS, solve_one
 from table2 import SCENARIO, parse_row
 
-from dualarm_mpc.horizon import solver_options
+from dualarm_mpc.horizon import solve_options
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.sequential import at_rest_in_goal, plan, predict_horizon, select_objects
@@ -91,7 +91,7 @@ def step_start(args: argparse.Namespace) -> tuple[State, list[dict]]:
     if args.step == 1:
         return State.initial(scenario), []
     stop = Interrupt()
-    options = replace(solver_options(scenario), interrupt=stop)
+    options = replace(solve_options(scenario), interrupt=stop)
 
     planned = []
 

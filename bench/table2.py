@@ -55,7 +55,7 @@ from benchlib import (
     write_report,
 )
 
-from dualarm_mpc.horizon import solve_step, solver_options
+from dualarm_mpc.horizon import solve_options, solve_step
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario
 from dualarm_mpc.sequential import PlanningError, plan, predict_horizon
@@ -182,7 +182,7 @@ def run_one(task: dict) -> dict:
         scenario = load_scenario(SCENARIO, overrides)
         if budget:
             budget.start()
-        result = plan(scenario, replace(solver_options(scenario), interrupt=stop),
+        result = plan(scenario, replace(solve_options(scenario), interrupt=stop),
                       progress=segments.append)
         if stop.is_set():  # a partial plan: its steps are in ``segments``
             result = None

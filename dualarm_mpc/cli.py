@@ -312,7 +312,7 @@ def _failed_writes(code: int, written: bool) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from dualarm_mpc.horizon import HorizonProgram, solver_options
+    from dualarm_mpc.horizon import HorizonProgram, solve_options
     from dualarm_mpc.sequential import PlanningError, plan
     from dualarm_mpc.solver import Interrupt
     from dualarm_mpc.verify import verify
@@ -369,7 +369,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
                   f"{res.status.value:<10} {res.solve_time_s:>9.2f}", flush=True)
 
     stop = Interrupt()
-    options = dataclasses.replace(solver_options(scenario), interrupt=stop)
+    options = dataclasses.replace(solve_options(scenario), interrupt=stop)
     try:
         result = _interruptible(lambda: plan(scenario, options, progress, tried), stop,
                                 heartbeat)

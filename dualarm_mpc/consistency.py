@@ -57,7 +57,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dualarm_mpc.horizon import HorizonProgram, solver_options
+from dualarm_mpc.horizon import HorizonProgram, solve_options
 from dualarm_mpc.ltl import TRUE, And, Eventually, Formula, Or, eta
 from dualarm_mpc.mld import Rect, State, target_box
 from dualarm_mpc.scenario import Scenario
@@ -107,7 +107,7 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     step as a whole. ``progress(done, total)`` is called as each object's check ends (from the
     worker threads), so that a long check can say how far it is."""
     state = State.initial(scenario) if state is None else state
-    options = options or solver_options(scenario)
+    options = options or solve_options(scenario)
     T = scenario.solver.max_horizon
     named = rule_formulas(scenario)
     todo = [int(j) for j in np.flatnonzero(~at_rest_in_goal(scenario, state))]

@@ -61,7 +61,9 @@ class StepResult:
     witness_horizon: int | None = None
 
 
-def solver_options(scenario: Scenario, time_limit_s: float | None = None) -> SolveOptions:
+def solve_options(scenario: Scenario, time_limit_s: float | None = None) -> SolveOptions:
+    """The options of one solve from the scenario's ``solver:`` settings (``time_limit_s`` in
+    place of theirs if given)."""
     s = scenario.solver
     return SolveOptions(time_limit_s=s.time_limit_s if time_limit_s is None else time_limit_s,
                         mip_rel_gap=s.mip_rel_gap, threads=s.threads, backend=s.backend)
@@ -257,7 +259,7 @@ def solve_step(scenario: Scenario, state: State, spec: Specification, horizon: i
                pruning: bool | None = None) -> StepResult:
     """Build and solve the monolithic MILP of one horizon (:meth:`HorizonProgram.solve`).
     ``start(x)`` may give a MIP start for the horizon's variables ``x``."""
-    options = options or solver_options(scenario)
+    options = options or solve_options(scenario)
     t0 = time.perf_counter()
     h = HorizonProgram(scenario, state, list(spec.objects), horizon, pruning)
     build = time.perf_counter() - t0

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
-from dualarm_mpc.horizon import StepResult, solver_options
+from dualarm_mpc.horizon import StepResult, solve_options
 from dualarm_mpc.mld import (
     POSITION_TOL,
     REST_SPEED,
@@ -135,7 +135,7 @@ class Replanner:
                  solve: Solve | None = None) -> None:
         self._scenario = scenario
         self.realtime = scenario.solver.realtime
-        self._options = solver_options(scenario, time_limit_s if self.realtime
+        self._options = solve_options(scenario, time_limit_s if self.realtime
                                        else NO_TIME_LIMIT_S)
         if not self.realtime:
             self._options = dataclasses.replace(self._options,

@@ -17,16 +17,11 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 
 from dualarm_mpc import outputs  # noqa: E402
+from dualarm_mpc.palette import ARM_COLOURS, goal_colour  # noqa: E402
 from dualarm_mpc.plan import Plan  # noqa: E402
 
-GOAL_COLOURS = {"red": "tab:red", "green": "tab:green", "blue": "tab:blue"}
-ARM_NAMES = ("arm 1 (right)", "arm 2 (left)")
-ARM_COLOURS = ("#e68c26", "#338c99")  # the arms' colours in the replay (models/dual_scara.sdf)
+ARM_LABELS = ("arm 1 (right)", "arm 2 (left)")
 STEPS_PER_ROW = 5
-
-
-def colour(goal: str) -> str:
-    return GOAL_COLOURS.get(goal, "tab:gray")
 
 
 def plot_plan(plan: Plan, path: str | Path, title: str = "") -> None:
@@ -60,7 +55,7 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
     ax = fig.add_subplot(grid[0])
     _table(ax, plan)
     for j, o in enumerate(plan.objects):
-        _object_path(ax, t.object_pos[:, j], colour(o["goal"]))
+        _object_path(ax, t.object_pos[:, j], goal_colour(o["goal"]))
         ax.annotate(str(j + 1), t.object_pos[0, j], fontsize=7, xytext=(4, -9),
                     textcoords="offset points")
     at_end = defaultdict(list)  # planned end (to 1 mm) → the objects that end there
@@ -81,7 +76,7 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
         Line2D([], [], ls="", marker="s", color="0.4", ms=7, label="object end (planned)"),
         *(Line2D([], [], color=c, marker=".", lw=1, ms=5,
                  label=f"{name} hand (below), a dot per {plan.dt:g} s")
-          for name, c in zip(ARM_NAMES, ARM_COLOURS, strict=True)),
+          for name, c in zip(ARM_LABELS, ARM_COLOURS, strict=True)),
     ], loc="upper left", bbox_to_anchor=(1.02, 1), fontsize=8, frameon=False)
     panels = grid[1].subgridspec(rows, STEPS_PER_ROW) if rows else None
     for s, seg in enumerate(plan.segments):
@@ -90,7 +85,7 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
         p.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), xticks=[], yticks=[])
         k = slice(ends[s], ends[s + 1] + 1)
         for j in np.flatnonzero(np.ptp(t.object_pos[k], axis=0).max(axis=1) > 1e-6):
-            _object_path(p, t.object_pos[k, j], colour(plan.objects[j]["goal"]))
+            _object_path(p, t.object_pos[k, j], goal_colour(plan.objects[j]["goal"]))
         for i in range(2):
             p.plot(*t.hand_pos[k, i].T, ".-", color=ARM_COLOURS[i], lw=1, ms=4)
         delivered = ",".join(str(j + 1) for j in seg.delivered) or "none"
@@ -103,14 +98,14 @@ def plan_figure(plan: Plan, title: str = "") -> Figure:
             on = t.grasp[:, i, j].astype(bool)
             if on.any():
                 tl.broken_barh([(s * plan.dt, n * plan.dt) for s, n in _runs(k[on])],
-                               (1 - i - 0.4, 0.8), color=colour(o["goal"]))
+                               (1 - i - 0.4, 0.8), color=goal_colour(o["goal"]))
                 tl.text((k[on][0] + 0.1) * plan.dt, 1 - i, str(j + 1), va="center", fontsize=7)
     for end in ends[1:]:
         tl.axvline(end * plan.dt, color="0.7", lw=0.8)
     tl.legend(handles=[Patch(color="0.6", label="holds object n, in its goal's colour"),
                        Line2D([], [], color="0.7", lw=0.8, label="end of a sequential step")],
               loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=8, frameon=False)
-    tl.set_yticks([1, 0], ARM_NAMES)
+    tl.set_yticks([1, 0], ARM_LABELS)
     tl.set_xlabel("time [s]")
     tl.set_xlim(0, max(len(k) - 1, 1) * plan.dt)
     fig.tight_layout()
@@ -123,7 +118,8 @@ def _table(ax: Axes, plan: Plan, names: bool = True) -> None:
     ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, ls="--",
                            ec="0.5"))
     for name, (gx0, gx1, gy0, gy1) in plan.goals.items():
-        ax.add_patch(Rectangle((gx0, gy0), gx1 - gx0, gy1 - gy0, color=colour(name), alpha=0.2))
+        ax.add_patch(Rectangle((gx0, gy0), gx1 - gx0, gy1 - gy0, color=goal_colour(name),
+                               alpha=0.2))
         if names:
             ax.text((gx0 + gx1) / 2, gy1 + 0.01, name, ha="center", va="bottom", fontsize=8)
     ax.set_aspect("equal")

@@ -10,7 +10,8 @@ from pydrake.geometry import Box, Meshcat, MeshcatParams, Rgba
 from pydrake.math import RigidTransform
 
 from dualarm_mpc import outputs
-from dualarm_mpc.station import Station, goal_colour
+from dualarm_mpc.palette import goal_colour
+from dualarm_mpc.station import Station
 
 # The view is framed for a 1280×800 window (a wider one only adds margin at the sides), through a
 # narrower lens than Meshcat's default 75° (vertical): less distorted, the near arms not huge.

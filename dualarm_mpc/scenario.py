@@ -1,7 +1,7 @@
 """Scenario: the typed description of one table-top task (Table I of the paper), loaded from YAML.
 
 A :class:`Scenario` groups its fields as :class:`Robot`, :class:`Table`, :class:`Task`,
-:class:`SolverOptions` and a list of :class:`Event`, each checking its own values; the file keeps
+:class:`SolverSettings` and a list of :class:`Event`, each checking its own values; the file keeps
 them flat (``max_speed``, ``m_o``), and :data:`YAML_FIELDS` maps each key to its group's field.
 A scenario file is read into these dataclasses; every field can then be overridden by a YAML
 mapping (the CLI's ``--set``), whose keys may be paths in the form errors are reported in
@@ -129,8 +129,10 @@ class RandomObjects:
 
 
 @dataclass
-class SolverOptions:
-    """Options of one MILP solve (docs/scenarios.md, the `solver:` fields)."""
+class SolverSettings:
+    """The scenario's ``solver:`` settings (docs/scenarios.md): the backend, the limits, the
+    search, the horizons, the closed loop's replans. ``horizon.solve_options`` makes the
+    ``solver.SolveOptions`` of one solve from them."""
 
     backend: str = "highs"  # or "scip", "gurobi", "cplex" where installed (solver.py)
     time_limit_s: float = field(default=30.0, metadata=_in(0.0, 86_400.0, lo_open=True))
@@ -364,7 +366,7 @@ class Scenario:
     robot: Robot = field(default_factory=Robot)
     table: Table = field(default_factory=Table)
     task: Task = field(default_factory=Task)
-    solver: SolverOptions = field(default_factory=SolverOptions)
+    solver: SolverSettings = field(default_factory=SolverSettings)
     events: list[Event] = field(default_factory=list)
 
     @property

@@ -50,7 +50,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from dualarm_mpc.evaluate import evaluate
-from dualarm_mpc.horizon import HorizonProgram, StepResult, solver_options
+from dualarm_mpc.horizon import HorizonProgram, StepResult, solve_options
 from dualarm_mpc.ltl import Atom
 from dualarm_mpc.mld import N_HANDS, Model, Rect, State, in_goal, replay, violations
 from dualarm_mpc.plan import Trajectory
@@ -836,7 +836,7 @@ def _bound(res: StepResult) -> float:
 def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
                options: SolveOptions | None, below: dict | None = None):
     """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
-    options = options or solver_options(scenario)
+    options = options or solve_options(scenario)
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
         yield StepSearch(scenario, state, spec, horizon, options, scenario.solver.handover, pool,
                          below={} if below is None else below)
@@ -847,7 +847,7 @@ def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, hor
     """Whether the one-hand and one-object relaxations prove that ``horizon`` has no plan
     (within ``time_limit_s``; False when they cannot tell, or ``options.interrupt`` stops
     them)."""
-    options = replace(options or solver_options(scenario), time_limit_s=time_limit_s)
+    options = replace(options or solve_options(scenario), time_limit_s=time_limit_s)
     with _searching(scenario, state, spec, horizon, options) as search:
         return search.ruled_out()
 

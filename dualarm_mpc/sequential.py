@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dualarm_mpc.horizon import StepResult, solve_step, solver_options
+from dualarm_mpc.horizon import StepResult, solve_options, solve_step
 from dualarm_mpc.mld import REST_TOL, Model, Rect, State, delivered, in_goal, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.route import horizon_bound
@@ -177,7 +177,7 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     of the budget, four times as much in the next round, so that one hard horizon does not
     take the time the others would be decided in. The step's horizon is proven minimal
     (:attr:`StepResult.minimal`) when every horizon below it was proven to have no plan."""
-    options = options or solver_options(scenario)
+    options = options or solve_options(scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
     undecided = list(range(predict_horizon(scenario, state, spec), found.horizon + 1))
@@ -260,7 +260,7 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
     objects = [scenario.task.objects[j].name for j in spec.objects]
     status = f" (last status: {last.status.value})" if last else ""
     head = f"no plan delivering {spec.m_o} of {objects} within horizon {T}{status}"
-    options = options or solver_options(scenario)
+    options = options or solve_options(scenario)
     quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s, 20.0),
                                 mip_rel_gap=1.0)
 

@@ -48,6 +48,7 @@ from pydrake.multibody.plant import (
 from pydrake.multibody.tree import Joint, ModelInstanceIndex, RigidBody, SpatialInertia
 from pydrake.systems.framework import DiagramBuilder
 
+from dualarm_mpc.palette import TABLE_COLOUR, goal_colour
 from dualarm_mpc.resources import ROBOT_URL, package_map
 from dualarm_mpc.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
@@ -55,25 +56,14 @@ from dualarm_mpc.systems.gripper import Gripper
 from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator, Limits
 from dualarm_mpc.systems.state_estimator import StateEstimator
 
-ARMS = ("right", "left")  # arm 1 (index 0) is the right arm, arm 2 (index 1) the left
+# The arms' names in the robot model: arm 1 (index 0) is the right arm, arm 2 (index 1) the left.
+ARM_SIDES = ("right", "left")
 JOINTS = ("shoulder", "elbow", "z")  # canonical joint c = 3·i + m of arm i
 OBJECT_MASS = 0.1  # kg
 OBJECT_MODULUS = 1e7  # Pa, compliant hydroelastic modulus of the objects
 # m: the spheres an object stands on. Point contact of a box on the table is one point, and a
 # pushed box sank 6-8 mm into it; hydroelastic box-table contact cost 1.4x the physics of a step.
 SUPPORT_RADIUS = 0.002
-GOAL_COLOURS = {
-    "red": (0.85, 0.15, 0.15),
-    "green": (0.15, 0.65, 0.2),
-    "blue": (0.15, 0.3, 0.85),
-}
-OTHER_COLOUR = (0.55, 0.55, 0.55)
-TABLE_COLOUR = (0.82, 0.78, 0.7, 1.0)
-
-
-def goal_colour(goal: str) -> tuple[float, float, float]:
-    """RGB of a goal name: red, green, blue by name, grey for any other name."""
-    return GOAL_COLOURS.get(goal.lower(), OTHER_COLOUR)
 
 
 @dataclass(frozen=True)
@@ -226,7 +216,7 @@ def _arm_pairs(plant: MultibodyPlant, robot: ModelInstanceIndex,
         tuple(g for body in plant.GetBodyIndices(robot)
               if plant.get_body(body).name().startswith(f"{arm}_")
               for g in plant.GetCollisionGeometriesForBody(plant.get_body(body)))
-        for arm in ARMS
+        for arm in ARM_SIDES
     )
     robot_ids = [g for arm in arms for g in arm]
     rest = [g for g in scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)
@@ -268,9 +258,9 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         CollisionFilterDeclaration().ExcludeBetween(GeometrySet(table), GeometrySet(list(boxes))))
 
     joints = tuple(
-        tuple(plant.GetJointByName(f"{arm}_{name}", robot) for name in JOINTS) for arm in ARMS
+        tuple(plant.GetJointByName(f"{arm}_{name}", robot) for name in JOINTS) for arm in ARM_SIDES
     )
-    hands = tuple(plant.GetBodyByName(f"{arm}_hand", robot) for arm in ARMS)
+    hands = tuple(plant.GetBodyByName(f"{arm}_hand", robot) for arm in ARM_SIDES)
     plant.Finalize()
 
     bases, lengths = _arm_geometry(plant, joints)

@@ -15,7 +15,7 @@ from scenes import two_objects
 from strategies import formulas
 
 from dualarm_mpc.consistency import check
-from dualarm_mpc.horizon import solve_step, solver_options
+from dualarm_mpc.horizon import solve_options, solve_step
 from dualarm_mpc.ltl import Atom, Formula, nnf, rename_atoms
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, apply_overrides
@@ -74,7 +74,7 @@ def monolithic_statuses(scenario: Scenario) -> list[Status]:
     first solution."""
     spec = specification(scenario, list(range(scenario.n_objects)))
     cap = scenario.solver.max_horizon
-    options = dataclasses.replace(solver_options(scenario), mip_rel_gap=1.0)
+    options = dataclasses.replace(solve_options(scenario), mip_rel_gap=1.0)
     horizons = [cap] if spec.monotone_in_horizon() else range(1, cap + 1)
     return [solve_step(scenario, State.initial(scenario), spec, T, options).status
             for T in horizons]

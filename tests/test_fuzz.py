@@ -18,7 +18,7 @@ from dualarm_mpc.scenario import (
     ObjectSpec,
     RandomObjects,
     ScenarioError,
-    SolverOptions,
+    SolverSettings,
     load_scenario,
     scenario_path,
 )
@@ -134,7 +134,7 @@ def _fields(cls) -> list[str]:
 
 
 # Keys: the fields, nested fields and paths into lists, and some that are none of these.
-KEYS = (list(YAML_FIELDS) + [f"solver.{k}" for k in _fields(SolverOptions)]
+KEYS = (list(YAML_FIELDS) + [f"solver.{k}" for k in _fields(SolverSettings)]
         + [f"random_objects.{k}" for k in _fields(RandomObjects)]
         + [f"objects[{n}].{k}" for n in (0, 3, 12) for k in _fields(ObjectSpec)]
         + [f"events[0].{k}" for k in _fields(Event)]

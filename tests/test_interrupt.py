@@ -8,7 +8,7 @@ import dataclasses
 import json
 import time
 
-from dualarm_mpc.horizon import solver_options
+from dualarm_mpc.horizon import solve_options
 from dualarm_mpc.plan import Plan
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.sequential import plan
@@ -19,7 +19,7 @@ from dualarm_mpc.verify import verify
 def test_a_stop_after_the_first_step_returns_it_as_a_partial_plan() -> None:
     scenario = load_scenario("table1_vd", {"rule": 2, "seed": 1})
     stop = Interrupt()
-    options = dataclasses.replace(solver_options(scenario), interrupt=stop)
+    options = dataclasses.replace(solve_options(scenario), interrupt=stop)
     result = plan(scenario, options, progress=lambda seg: stop.set())
     assert result.partial and len(result.segments) == 1
     assert result.trajectory.steps == result.segments[0].horizon
@@ -31,7 +31,7 @@ def test_a_stop_before_the_first_step_returns_the_initial_state() -> None:
     scenario = load_scenario("table1_vd", {"rule": 2, "seed": 1})
     stop = Interrupt()
     stop.set()
-    result = plan(scenario, dataclasses.replace(solver_options(scenario), interrupt=stop))
+    result = plan(scenario, dataclasses.replace(solve_options(scenario), interrupt=stop))
     assert result.partial and not result.segments and result.trajectory.steps == 0
 
 

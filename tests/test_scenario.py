@@ -624,12 +624,12 @@ def test_alias_expansion_is_capped_before_anything_is_built() -> None:
 
 
 def test_every_number_field_has_a_range() -> None:
-    from dualarm_mpc.scenario import Event, ObjectSpec, RandomObjects, SolverOptions
+    from dualarm_mpc.scenario import Event, ObjectSpec, RandomObjects, SolverSettings
 
     s = Scenario()
     numeric = (int, float, int | None, float | None, list[float], list[list[float]],
                dict[str, list[float]])
-    for cls in (type(s.robot), type(s.table), type(s.task), SolverOptions, ObjectSpec,
+    for cls in (type(s.robot), type(s.table), type(s.task), SolverSettings, ObjectSpec,
                 RandomObjects, Event):
         hints = typing.get_type_hints(cls)
         for f in dataclasses.fields(cls):

@@ -14,10 +14,11 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
 from dualarm_mpc.mld import State
+from dualarm_mpc.palette import goal_colour
 from dualarm_mpc.plan import TimedTrajectory, Trajectory
 from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
 from dualarm_mpc.scenario import ObjectSpec, Scenario, Table, Task, load_scenario
-from dualarm_mpc.station import AddControlStack, AddStation, Station, goal_colour
+from dualarm_mpc.station import AddControlStack, AddStation, Station
 from dualarm_mpc.systems.clearance import Clearance
 from dualarm_mpc.systems.controller import (
     GAP_SLACK,
