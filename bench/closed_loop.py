@@ -138,7 +138,7 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
     def progress(r) -> None:
         if not args.quiet:
             horizon = "-" if r.horizon is None else r.horizon
-            print(f"  {tag}: t {r.t:6.1f}  delivered {r.delivered:>2}  {r.status:<10} "
+            print(f"  {tag}: t {r.t:6.1f}  delivered {r.n_delivered:>2}  {r.status:<10} "
                   f"T {horizon:>2}  {r.wall_s:7.3f} s" + (f"  ({r.note})" if r.note else ""),
                   file=sys.stderr, flush=True)
 

@@ -45,9 +45,9 @@ from solvers import METHODS, solve_one
 from table2 import SCENARIO, parse_row
 
 from dualarm_mpc.horizon import solve_options
-from dualarm_mpc.mld import State
+from dualarm_mpc.mld import State, delivered_objects
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import at_rest_in_goal, plan, predict_horizon, select_objects
+from dualarm_mpc.sequential import plan, predict_horizon, select_objects
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.spec import specification
 
@@ -136,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     info = machine()
     state, before = step_start(args)
     scenario = scenario_for(args, args.time_limit)
-    remaining = np.flatnonzero(~at_rest_in_goal(scenario, state)).tolist()
+    done = delivered_objects(scenario, state.object_pos, state.object_vel)
+    remaining = np.flatnonzero(~done).tolist()
     if not remaining:
         raise SystemExit(f"every object is delivered before step {args.step}")
     objects = select_objects(scenario, state, remaining)

@@ -141,7 +141,7 @@ def run_one(task: dict) -> dict:
 
     def progress(r) -> None:
         if not task["quiet"]:
-            print(f"  {tag}: t {r.t:6.1f}  delivered {r.delivered:>2}  {r.status:<11} "
+            print(f"  {tag}: t {r.t:6.1f}  delivered {r.n_delivered:>2}  {r.status:<11} "
                   f"{r.wall_s:6.3f} s" + (f"  ({r.note})" if r.note else ""),
                   file=sys.stderr, flush=True)
 

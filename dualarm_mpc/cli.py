@@ -168,10 +168,10 @@ def _paths_problem(args: argparse.Namespace) -> str | None:
 
 def _objects_left(scenario) -> int:
     """How many objects do not yet rest in their goals; says so if none or fewer than m_o."""
-    from dualarm_mpc.mld import State
-    from dualarm_mpc.sequential import at_rest_in_goal
+    from dualarm_mpc.mld import State, delivered_objects
 
-    left = int((~at_rest_in_goal(scenario, State.initial(scenario))).sum())
+    start = State.initial(scenario)
+    left = int((~delivered_objects(scenario, start.object_pos, start.object_vel)).sum())
     if not left:
         print("nothing to do: every object already rests in its goal")
     elif left < scenario.task.m_o:
@@ -456,7 +456,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     def progress(r) -> None:
         names = ",".join(scenario.task.objects[j].name.removeprefix("object") for j in r.objects)
-        print(f"{r.t:>7.1f}  {r.delivered:>5}/{scenario.n_objects:<3}  {r.status:<10} "
+        print(f"{r.t:>7.1f}  {r.n_delivered:>5}/{scenario.n_objects:<3}  {r.status:<10} "
               f"{r.horizon if r.horizon is not None else '-':>3}  {r.wall_s:>9.3f}  {names}"
               + (f"  ({r.note})" if r.note else ""), flush=True)
 

@@ -26,7 +26,7 @@ from pydrake.systems.framework import Context, EventStatus
 from dualarm_mpc import outputs, recording
 from dualarm_mpc.diagram import DualArm, MakeDiagram
 from dualarm_mpc.disturbances import Disturbance, World, knock, move_goal
-from dualarm_mpc.mld import REST_SPEED, at_rest, delivered
+from dualarm_mpc.mld import REST_SPEED, at_rest, delivered_objects
 from dualarm_mpc.mpc import Replan, Solve
 from dualarm_mpc.scenario import Event, Scenario, ScenarioError
 
@@ -260,8 +260,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
     pos = np.array([plant.EvalBodyPoseInWorld(pc, b).translation() for b in dual.station.objects])
     vel = _object_velocities(dual, context)
     speed = [float(np.linalg.norm(v)) for v in vel]
-    resting = [bool(delivered(pos[j, :2], vel[j], goals[o.goal], REST_SPEED))
-               for j, o in enumerate(scenario.task.objects)]
+    resting = delivered_objects(scenario, pos[:, :2], vel, REST_SPEED, goals)
     realtime = dual.planner.realtime
     return Summary(
         mode="realtime" if realtime else "lockstep",
@@ -273,7 +272,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         delivered_time_s=[None if d is None else round(d, 3) for d in s.delivered_time],
         replans=[{"t": round(r.t, 3), "status": r.status, "cost": r.cost, "horizon": r.horizon,
                   "objects": [scenario.task.objects[j].name for j in r.objects],
-                  "delivered": r.delivered, "note": r.note} for r in replans],
+                  "delivered": r.n_delivered, "note": r.note} for r in replans],
         sim_time_s=round(t, 3),
         all_delivered=all(resting),
         events=[e.__dict__ for e in [*scenario.events, *applied]],

@@ -59,9 +59,9 @@ import numpy as np
 
 from dualarm_mpc.horizon import HorizonProgram, solve_options
 from dualarm_mpc.ltl import TRUE, And, Eventually, Formula, Or, eta
-from dualarm_mpc.mld import Rect, State, target_box
+from dualarm_mpc.mld import Rect, State, delivered_objects, target_box
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.sequential import at_rest_in_goal, select_objects
+from dualarm_mpc.sequential import select_objects
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, confined, rule_formulas, specification
 
@@ -110,7 +110,8 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     options = options or solve_options(scenario)
     T = scenario.solver.max_horizon
     named = rule_formulas(scenario)
-    todo = [int(j) for j in np.flatnonzero(~at_rest_in_goal(scenario, state))]
+    done = delivered_objects(scenario, state.object_pos, state.object_vel)
+    todo = [int(j) for j in np.flatnonzero(~done)]
     first = select_objects(scenario, state, todo)
     # Objects the first step delivers from this state; any other may be delivered by a later
     # step, whose hands start elsewhere.

@@ -48,7 +48,7 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.systems.framework import Context
 
 from dualarm_mpc.diagram import DualArm
-from dualarm_mpc.mld import REST_SPEED, Rect, State, delivered, in_goal, target_box
+from dualarm_mpc.mld import REST_SPEED, Rect, State, delivered_objects, in_goal, target_box
 from dualarm_mpc.scenario import Event, Scenario
 from dualarm_mpc.station import table_extent
 
@@ -302,11 +302,10 @@ class RandomDisturbances:
     # helpers
 
     def _resting(self, world: World) -> np.ndarray:
-        sc = self.scenario
-        resting = np.array([delivered(world.state.object_pos[j], world.state.object_vel[j],
-                                      world.goals[o.goal], REST_SPEED)
-                            for j, o in enumerate(sc.task.objects)])
-        return np.flatnonzero(resting & ~world.state.grasp.any(axis=0))
+        x = world.state
+        resting = delivered_objects(self.scenario, x.object_pos, x.object_vel, REST_SPEED,
+                                    world.goals)
+        return np.flatnonzero(resting & ~x.grasp.any(axis=0))
 
     def _knock(self, d: Scheduled, world: World, j: int, accept: Callable[[np.ndarray], bool]):
         name = self.scenario.task.objects[j].name

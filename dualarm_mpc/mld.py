@@ -85,6 +85,16 @@ def delivered(pos: np.ndarray, vel: np.ndarray, box: list[float] | Rect,
     return in_goal(pos, box) & at_rest(vel, speed)
 
 
+def delivered_objects(scenario: Scenario, pos: np.ndarray, vel: np.ndarray,
+                      speed: float = REST_TOL, goals: dict[str, list[float]] | None = None
+                      ) -> np.ndarray:
+    """(N,) whether each object, at ``pos`` (N, 2) moving at ``vel`` (N, 2 or 3), is
+    :func:`delivered` in its goal (``goals``: the scenario's unless given)."""
+    goals = scenario.task.goals if goals is None else goals
+    return np.array([bool(delivered(pos[j], vel[j], goals[o.goal], speed))
+                     for j, o in enumerate(scenario.task.objects)], dtype=bool)
+
+
 @dataclass(frozen=True)
 class State:
     """The MLD state at one step (and the grasps in force), planar: the model's, a plan's, and

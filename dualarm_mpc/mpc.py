@@ -97,7 +97,7 @@ class Replan:
     cost: float | None
     horizon: int | None
     objects: tuple[int, ...]
-    delivered: int  # objects resting in their goals when it ran
+    n_delivered: int  # objects resting in their goals when it ran
     note: str = ""
 
 
@@ -411,7 +411,7 @@ def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | 
     r = Replan(t=t, wall_s=time.perf_counter() - wall0, status=status,
                cost=None if res is None or res.trajectory is None else res.cost,
                horizon=None if res is None else res.horizon, objects=new.step_objects,
-               delivered=sum(d is not None for d in new.delivered_time), note=note)
+               n_delivered=sum(d is not None for d in new.delivered_time), note=note)
     return new, r
 
 

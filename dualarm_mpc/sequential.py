@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dualarm_mpc.horizon import StepResult, solve_options, solve_step
-from dualarm_mpc.mld import REST_TOL, Model, Rect, State, delivered, in_goal, reachability
+from dualarm_mpc.mld import Model, Rect, State, delivered_objects, in_goal, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.route import horizon_bound
 from dualarm_mpc.scenario import Scenario
@@ -107,13 +107,6 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
         return float(to_hand + to_goal)
 
     return sorted(sorted(remaining, key=lambda j: (estimate(j), j))[: scenario.task.n_o])
-
-
-def at_rest_in_goal(scenario: Scenario, state: State) -> np.ndarray:
-    """(N,) whether each object is delivered in the model: at rest (``REST_TOL``) in its goal."""
-    return np.array([bool(delivered(state.object_pos[j], state.object_vel[j],
-                                    scenario.task.goals[o.goal], REST_TOL))
-                     for j, o in enumerate(scenario.task.objects)], dtype=bool)
 
 
 def plan_step(scenario: Scenario, state: State, spec: Specification,
@@ -310,7 +303,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
     trajectory = Trajectory.still(state)
     segments: list[Segment] = []
     delivered_step: list[int | None] = [None] * scenario.n_objects
-    done = at_rest_in_goal(scenario, state)
+    done = delivered_objects(scenario, state.object_pos, state.object_vel)
     for j in np.flatnonzero(done):
         delivered_step[j] = 0
 
@@ -346,7 +339,7 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
         offset = trajectory.steps
         trajectory = trajectory.then(step)
         state = State.last(step)
-        now = at_rest_in_goal(scenario, state)
+        now = delivered_objects(scenario, state.object_pos, state.object_vel)
         newly = [j for j in objects if now[j] and not done[j]]
         for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
             goal = scenario.task.goals[scenario.task.objects[j].goal]

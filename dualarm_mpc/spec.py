@@ -96,9 +96,10 @@ def instances(formula: Formula) -> tuple[Formula, ...]:
     return formula.args if isinstance(formula, And) else (formula,)
 
 
-def delivered(j: int, delivery: str) -> Formula:
-    """"Object j is delivered": ◇θ_j (``reach``, the paper) or ◇□θ_j (``rest``: in the goal at the
-    horizon's last step, where the model holds every object at rest)."""
+def delivery_event(j: int, delivery: str) -> Formula:
+    """ev_j of eq. (13), "object j is delivered": ◇θ_j (``reach``, the paper) or ◇□θ_j
+    (``rest``: in the goal at the horizon's last step, where the model holds every object at
+    rest)."""
     return Eventually(theta(j)) if delivery == "reach" else Eventually(Always(theta(j)))
 
 
@@ -119,7 +120,7 @@ class Specification:
     def events(self) -> list[Formula]:
         """The ev_j of eq. (13), one per object of the step."""
         targets = self.objects if self.targets is None else self.targets
-        return [delivered(j + 1, self.delivery) for j in targets]
+        return [delivery_event(j + 1, self.delivery) for j in targets]
 
     def task(self) -> Formula:
         """φ_task, eq. (13) literally: any m_o of the n_o objects delivered."""
@@ -389,13 +390,13 @@ def confined(spec: Specification) -> Specification:
                                      for name, f in spec.rules))
 
 
-def untouchable(spec: Specification, state: State, delivered: Iterable[int]) -> frozenset[int]:
-    """The step's objects outside ``delivered`` (scenario indices) that an optimal plan may leave
+def untouchable(spec: Specification, state: State, targets: Iterable[int]) -> frozenset[int]:
+    """The step's objects outside ``targets`` (scenario indices) that an optimal plan may leave
     untouched: none is held now, and every rule instance that mentions one is TRUE once their η
     are FALSE at every step. Untouching them keeps the hands' motion, hence the cost, and every
     other object's motion, hence φ_task."""
-    delivered = set(delivered)
-    outside = [j for j in spec.objects if j not in delivered]
+    targets = set(targets)
+    outside = [j for j in spec.objects if j not in targets]
     candidates = {j for j in outside if not state.grasp[:, j].any()}
     known = {Atom("eta", (i, j + 1)): False for i in (1, 2) for j in candidates}
     numbers = {j + 1 for j in candidates}

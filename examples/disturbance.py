@@ -18,7 +18,7 @@ from pydrake.systems.framework import EventStatus
 from dualarm_mpc.closed_loop import on_robot
 from dualarm_mpc.diagram import MakeDiagram
 from dualarm_mpc.disturbances import knock, move_goal
-from dualarm_mpc.mld import REST_SPEED, delivered
+from dualarm_mpc.mld import REST_SPEED, delivered_objects
 from dualarm_mpc.scenario import load_scenario, merge_overrides
 
 KNOCK_T, KNOCK_TO = 4.0, [-0.15, 0.05]  # s, m: object1 lands here
@@ -71,13 +71,10 @@ def _delivered(scenario, dual, context) -> list[bool]:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
     boxes = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
-    out = []
-    goal_names = [o.goal for o in scenario.task.objects]
-    for body, goal in zip(dual.station.objects, goal_names, strict=True):
-        p = plant.EvalBodyPoseInWorld(pc, body).translation()[:2]
-        v = plant.EvalBodySpatialVelocityInWorld(pc, body).translational()
-        out.append(bool(delivered(p, v, boxes[goal], REST_SPEED)))
-    return out
+    pos = [plant.EvalBodyPoseInWorld(pc, b).translation()[:2] for b in dual.station.objects]
+    vel = [plant.EvalBodySpatialVelocityInWorld(pc, b).translational()
+           for b in dual.station.objects]
+    return delivered_objects(scenario, pos, vel, REST_SPEED, boxes).tolist()
 
 
 if __name__ == "__main__":

@@ -44,7 +44,7 @@ def test_a_replan_from_rest_returns_a_plan_that_starts_now_and_its_record() -> N
     s1, r = core.step(0.0, s0, at_rest(sc), sc.task.goals)
     core.close()
     assert r.status in ("optimal", "feasible") and r.t == 0.0 and r.wall_s >= 0
-    assert r.objects == (0,) and r.delivered == 0 and r.horizon is not None
+    assert r.objects == (0,) and r.n_delivered == 0 and r.horizon is not None
     assert s1.plan.t0 == 0.0 and s1.plan.trajectory.steps == r.horizon
     assert s1.horizon_end == r.horizon * sc.robot.dt and s1.step_objects == (0,)
     assert core.search is None and s0.step_objects == ()  # the input state is not changed
@@ -60,7 +60,7 @@ def test_an_object_resting_in_its_goal_is_delivered_and_the_robot_holds_still() 
     slow = dataclasses.replace(slow, object_vel=np.array([[0.5 * REST_SPEED, 0.0]]))
     s, r = core.step(3.0, core.initial_state(), slow, sc.task.goals)
     core.close()
-    assert r.status == "done" and r.delivered == 1 and s.delivered_time == (3.0,)
+    assert r.status == "done" and r.n_delivered == 1 and s.delivered_time == (3.0,)
     assert s.plan.t0 == 3.0 and not s.plan.trajectory.grasp.any()
 
 
@@ -74,7 +74,7 @@ def test_an_object_creeping_across_its_goals_edge_is_not_delivered() -> None:
     creeping = dataclasses.replace(creeping, object_vel=np.array([[0.0, 0.4 * REST_SPEED]]))
     s, r = core.step(3.0, core.initial_state(), creeping, sc.task.goals)
     core.close()
-    assert r.status in ("optimal", "feasible") and r.delivered == 0
+    assert r.status in ("optimal", "feasible") and r.n_delivered == 0
     assert s.delivered_time == (None,) and s.step_objects == (0,)
 
 
