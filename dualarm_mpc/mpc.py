@@ -7,8 +7,8 @@ from the measured state (Algorithm 1, one step at a time):
 * the grasp in force for the next Δt is the one the previous plan committed to, so the new plan's
   η(0) is that (a decision takes effect one step after it is made, as in the model's k = 0);
 * an object is *delivered* when it is at rest on the robot (``mld.REST_SPEED``) in its goal,
-  unheld; the step ends when m_o of its objects are delivered, and the next step selects new
-  objects;
+  unheld (``delivery.py`` decides which are); the step ends when m_o of its objects are
+  delivered, and the next step selects new objects;
 * within a step every replan takes the shortest feasible horizon from the measured state (so the
   plan cannot idle and the step arrives), MIP-started from the previous plan's grasps shifted by
   one step;
@@ -17,11 +17,12 @@ from the measured state (Algorithm 1, one step at a time):
   search, over all its horizons, at ``solver.replan_program_limit`` programs instead), so the
   replan is a function of its inputs alone, on any machine and under any load;
 * real time (``solver.realtime``): a replan holds the caller for ``solver.replan_budget_s`` of
-  wall time at most (0.4 Δt by default). The search runs on a worker thread; past the budget the
-  robot follows the plan in force. While the robot waits at rest with no plan left (the first
-  replan of a step), the search goes on over the next periods and its plan starts when it ends
-  ("searching"); while the robot moves, the late search is stopped ("over_budget") and the next
-  period plans afresh. What the robot does then depends on the machine;
+  wall time at most (0.4 Δt by default). The search runs on a worker thread
+  (``replan_worker.py``); past the budget the robot follows the plan in force. While the robot
+  waits at rest with no plan left (the first replan of a step), the search goes on over the next
+  periods and its plan starts when it ends ("searching"); while the robot moves, the late search
+  is stopped ("over_budget") and the next period plans afresh. What the robot does then depends
+  on the machine;
 * a replan from exactly the state the plan in force reaches now, when that plan was proven
   optimal for the same step and goals, keeps it without a search ("kept"): by the principle of
   optimality its rest is the replan's optimum (:meth:`Replanner._on_proven_plan`);
@@ -39,25 +40,20 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 
 import numpy as np
 
+from dualarm_mpc import delivery
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import StepResult, solve_options
 from dualarm_mpc.mld import (
     POSITION_TOL,
-    REST_SPEED,
-    Model,
     Rect,
     State,
-    at_rest,
-    in_goal,
-    reachability,
 )
 from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
+from dualarm_mpc.replan_worker import ReplanWorker, Search
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.sequential import embed_step, predict_horizon, select_objects, solve_horizon
 from dualarm_mpc.solver import Interrupt, SolveOptions, Status, WorkLimit
@@ -70,10 +66,6 @@ STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is mea
 SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the plan's own state
 SNAP_VELOCITY = 0.05  # m/s
 GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close to the grasp box
-KEPT = 1e-3  # m: a plan that moves an object less than this to its end leaves it where it is
-# Real time: the share of a control period a replan may hold the simulation for. The plant's own
-# simulation of §V-D takes about half of real time, so 0.4 Δt keeps the loop at least real time.
-BUDGET_SHARE = 0.4
 # Lockstep: the time limit of every solve, long enough never to be reached (a wall-clock limit
 # would make the plan depend on the machine), finite for the backends that refuse infinity; what
 # bounds a solve instead is ``solver.replan_node_limit``, a count of branch-and-bound nodes.
@@ -99,14 +91,6 @@ class Replan:
     objects: tuple[int, ...]
     n_delivered: int  # objects resting in their goals when it ran
     note: str = ""
-
-
-@dataclass(frozen=True)
-class Search:
-    """Real time: a search carried over to the next periods, the job and its running future."""
-
-    job: _Job
-    future: Future
 
 
 @dataclass(frozen=True)
@@ -141,13 +125,8 @@ class Replanner:
             self._options = dataclasses.replace(self._options,
                                                 node_limit=scenario.solver.replan_node_limit)
         self._solve_horizon = solve_horizon if solve is None else solve
-        # Real time: the wall time a replan may hold the simulation, the worker that searches
-        # meanwhile (made once), and the search carried over to the next periods, if any.
-        budget = scenario.solver.replan_budget_s
-        self._budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
-        self._worker = (ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
-                        if self.realtime else None)
-        self.search: Search | None = None
+        # Real time: the worker that searches within the budget, and on while the robot waits.
+        self._worker = ReplanWorker(scenario) if self.realtime else None
         self._rules = rule_formulas(scenario)
         # The paper's rules look at most two steps ahead, which the model's state fixes (see
         # _on_proven_plan); a user rule may look anywhere, so with one every replan searches.
@@ -158,11 +137,15 @@ class Replanner:
         return MpcState(plan=empty_plan(sc.n_objects, np.array(sc.robot.hand_start)),
                         delivered_time=(None,) * sc.n_objects)
 
+    @property
+    def search(self) -> Search | None:
+        """Real time: the search carried over to the next periods, if any."""
+        return None if self._worker is None else self._worker.search
+
     def close(self) -> None:
         """Stop the search carried over, if any, and the worker (the run is over)."""
-        self._abandon()
         if self._worker is not None:
-            self._worker.shutdown(wait=False, cancel_futures=True)
+            self._worker.close()
 
     def step(self, t: float, state: MpcState, measured: State,
              goals: Goals) -> tuple[MpcState, Replan]:
@@ -173,7 +156,8 @@ class Replanner:
             return self._replan(t, state, measured, goals, wall0)
         except Exception as err:  # a replan must never stop the simulation
             log.exception("replan at t=%.2f failed", t)
-            self._abandon()
+            if self._worker is not None:
+                self._worker.abandon()
             return _record(state, t, wall0, "error", note=f"{type(err).__name__}: {err}")
 
     # -- the replan ---------------------------------------------------------------------------
@@ -184,14 +168,15 @@ class Replanner:
         follow the plan in force and let the search go on in the background while the robot
         waits at rest (carried over to the next periods), or stop it while the robot moves (its
         start state is gone by then)."""
+        worker = self._worker
         if self.search is not None:
             job, future = self.search.job, self.search.future
             if job.scenario.task.goals != goals or not self._still(job, measured):
-                self._abandon()  # the world moved on: plan afresh below
-            elif not _wait(future, self._budget_s):
+                worker.abandon()  # the world moved on: plan afresh below
+            elif not worker.within_budget(future):
                 return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
             else:
-                self.search = None
+                worker.take()
                 return self._adopt(s, job, future.result(), t, wall0)
         prepared = self._prepare(t, s, measured, goals, wall0)
         if not isinstance(prepared, _Job):
@@ -203,20 +188,14 @@ class Replanner:
                            grasp_start=(previous, grasp[1:]), **job.changes)
         if not self.realtime:
             return self._adopt(s, job, self._solve(job), t, wall0)
-        future = self._worker.submit(self._solve, job)
-        if _wait(future, self._budget_s):
+        future = worker.start(self._solve, job)
+        if worker.within_budget(future):
             return self._adopt(s, job, future.result(), t, wall0)
         if job.idle:
-            self.search = Search(job, future)
+            worker.carry(job, future, job.options.interrupt)
             return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
         job.options.interrupt.set()
         return _record(s, t, wall0, "over_budget", note="kept the previous plan", **job.changes)
-
-    def _abandon(self) -> None:
-        """Stop the search carried over, if any."""
-        if self.search is not None:
-            self.search.job.options.interrupt.set()
-            self.search = None
 
     def _prepare(self, t: float, s: MpcState, measured: State, goals: Goals, wall0: float):
         """What the replan at ``t`` must solve (a :class:`_Job`), or the new state and record at
@@ -225,13 +204,14 @@ class Replanner:
         sc = dataclasses.replace(base, task=dataclasses.replace(base.task, goals=goals))
         state = self._committed_state(t, s, measured)
         # A held object counts once its plan is over, or when that plan keeps it where it is.
-        resting = _resting(sc, state, (t >= s.horizon_end - 1e-9) | _kept(s.plan, t), measured)
+        released = (t >= s.horizon_end - 1e-9) | delivery.kept(s.plan, t)
+        resting = delivery.resting(sc, state, released, measured)
         delivered_time = tuple((t if d is None else d) if r else None
                                for d, r in zip(s.delivered_time, resting, strict=True))
         # A thrown object still sliding into its goal needs nothing more from the robot.
-        done = resting | _arriving(sc, state, measured)
+        done = resting | delivery.arriving(sc, state, measured)
         n_done = int(np.sum(done))
-        lost = _lost(sc, state) & ~done
+        lost = delivery.lost(sc, state) & ~done
         remaining = [j for j in range(sc.n_objects) if not done[j] and not lost[j]]
         if not remaining and lost.any():
             names = ", ".join(sc.task.objects[j].name for j in np.flatnonzero(lost))
@@ -421,62 +401,6 @@ def _step_key(job: _Job) -> tuple:
     return job.spec.objects, job.spec.m_o, goals
 
 
-def _lost(sc: Scenario, state: State) -> np.ndarray:
-    """Objects that reachability proves can never reach their goals (e.g. knocked or thrown
-    short beyond the hands' reach): left out so that the others still get delivered."""
-    model = Model.from_scenario(sc)
-    reach = reachability(model, state, sc.solver.max_horizon)
-    return reach.first_goal > sc.solver.max_horizon
-
-
-def _stops_in_goal(sc: Scenario, pos: np.ndarray, vel) -> np.ndarray:
-    """(N,) whether each unheld object at ``pos`` moving at ``vel`` stops in its goal: the
-    one-step slide carries it v·Δt on (docs/model.md; on the robot the table's drag)."""
-    stop = np.asarray(pos, float) + sc.robot.dt * np.asarray(vel, float)
-    return np.array([in_goal(stop[j], sc.task.goals[o.goal])
-                     for j, o in enumerate(sc.task.objects)])
-
-
-def _arriving(sc: Scenario, state: State, measured: State) -> np.ndarray:
-    """Unheld moving objects whose one-step slide ends in their goals, in the committed state
-    or in the measured one: slower than ``STILL_SPEED`` the committed state has it at rest,
-    and one sliding in from just outside would look undelivered for a replan (measured:
-    "stuck" for one replan when its goal lay out of reach)."""
-    arriving = np.zeros(sc.n_objects, bool)
-    for pos, vel in ((state.object_pos, state.object_vel),
-                     (measured.object_pos, measured.object_vel)):
-        moving = np.linalg.norm(vel, axis=1) > 0
-        arriving |= _stops_in_goal(sc, pos, vel) & moving
-    return arriving & ~state.grasp.any(axis=0)
-
-
-def _resting(sc: Scenario, state: State, released: np.ndarray, measured: State) -> np.ndarray:
-    """Objects delivered on the robot (at rest to ``REST_SPEED`` in their goals); one still held
-    counts where ``released`` (N,): the hand has nothing left to do with it and lets go when it
-    moves on. Where the measured object stops counts too (before slow speeds are taken as
-    noise): one creeping across its goal's edge is not delivered (measured: reported done, it
-    ended 0.4 mm outside at 2.5 mm/s). That stop point is the measured position's, not the
-    committed one's: a plan's slide ends at its nominal end point, and the drag's rest of it
-    added there would count the slide twice."""
-    inside = (_stops_in_goal(sc, state.object_pos, 0.0)
-              & _stops_in_goal(sc, measured.object_pos, measured.object_vel))
-    return inside & at_rest(state.object_vel, REST_SPEED) & (released | ~state.grasp.any(axis=0))
-
-
-def _kept(plan: TimedTrajectory, t: float) -> np.ndarray:
-    """(N,) objects the plan in force leaves where they are from ``t`` to its end: a held one has
-    nothing left to do. Without this, a plan that only holds an object still is replaced every
-    Δt by another one as long, never ends, and the object is never counted delivered — measured:
-    held at rest in its goal 1e-7 m short of its target box (a solver tolerance) with the hand at
-    the edge of its range, the shortest feasible horizon stayed 2 for 185 s."""
-    traj = plan.trajectory
-    k, _ = step_at(plan, t)
-    if not 0 <= k < len(traj.object_pos):
-        return np.zeros(traj.object_pos.shape[1], bool)
-    rest = traj.object_pos[k:]
-    return np.abs(rest - rest[0]).max(axis=(0, 2)) < KEPT
-
-
 @dataclass(frozen=True)
 class _Job:
     """One replan's search: what to solve, from which state, and how to stop it."""
@@ -488,14 +412,6 @@ class _Job:
     options: SolveOptions  # with the Interrupt that stops it
     idle: bool  # the robot rests with no plan left: a late result still applies
     changes: dict  # the bookkeeping to record with the replan
-
-
-def _wait(future: Future, timeout_s: float) -> bool:
-    try:
-        future.result(timeout=timeout_s)
-    except FutureTimeout:
-        return False
-    return True
 
 
 def _hold(t: float, dt: float, state: State) -> TimedTrajectory:
