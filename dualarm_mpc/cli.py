@@ -345,6 +345,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         notes = [f"m_o = {len(seg.objects)}: the objects left"] if fewer else []
         if seg.witness_cost is not None:
             notes.append(f"witness {seg.witness_cost:.3f} at T = {seg.witness_horizon}")
+        if seg.horizons_proven_by_cpsat:
+            notes.append("CP-SAT proved T = " + ", ".join(map(str, seg.horizons_proven_by_cpsat)))
         if not seg.horizon_proven_minimal:
             notes.append("a shorter horizon undecided")
         print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
@@ -365,8 +367,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
             export.add(t.step, t.spec, res.horizon, res.status, res.cost, form)
         if not res.status.has_solution:
             said[0] = time.perf_counter()
+            by = "  (CP-SAT)" if res.message.startswith("CP-SAT") else ""
             print(f"{'':>4}  {'':<22} {res.horizon:>3} {res.binaries:>8}  "
-                  f"{res.status.value:<10} {res.solve_time_s:>9.2f}", flush=True)
+                  f"{res.status.value:<10} {res.solve_time_s:>9.2f}{by}", flush=True)
 
     stop = Interrupt()
     options = dataclasses.replace(solve_options(scenario), interrupt=stop)

@@ -53,20 +53,24 @@ a column that fails is a continuous column, which may fail its rows' other truth
 
 So every point of the MILP maps, column by column, to a point of the relaxation: if CP-SAT
 proves the relaxation infeasible, the MILP is. CP-SAT runs on one worker with a fixed seed
-(:meth:`Relaxation.solve`).
+(:meth:`Relaxation.solve`); :class:`Prover` runs it beside the skeleton search, on the horizons
+the search has not decided (``sequential.py``).
 """
 
 from __future__ import annotations
 
 import itertools
+import threading
 import time
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager, nullcontext
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
 
 from dualarm_mpc.scenario import ortools_installed
-from dualarm_mpc.solver import SolveOptions, SolverUnavailable, StandardForm, Status
+from dualarm_mpc.solver import Interrupt, SolveOptions, SolverUnavailable, StandardForm, Status
 
 RESOLUTION = 2**17  # units over a continuous column's range, at least
 TOL = 1e-6  # a row's widening for the points solvers accept (their feasibility tolerance)
@@ -79,7 +83,7 @@ def require() -> None:
     """Raise :class:`SolverUnavailable` (one line) unless OR-Tools is installed."""
     if not ortools_installed():
         raise SolverUnavailable("the CP-SAT prover needs OR-Tools, which is not installed here "
-                                "(pip install 'dualarm_mpc[ortools]')")
+                                "(pip install 'dualarm_mpc[ortools]', or solver.prover: none)")
 
 
 @dataclass(frozen=True)
@@ -234,6 +238,111 @@ class Relaxation:
         return Proof(ours[status], time.perf_counter() - t0,
                      f"CP-SAT {solver.status_name(status)}, {solver.num_conflicts} conflicts, "
                      f"{solver.num_branches} branches", self.binaries)
+
+
+class Prover:
+    """CP-SAT beside the skeleton search, on a thread of its own (``sequential.py``): it tries
+    to prove the horizons it is asked about infeasible (their programs ``form(T)``), each for a
+    slice of time that grows fourfold every time it comes back to it (the least tried first, as
+    the search's rounds), until :meth:`close`; :meth:`proofs` are those of the horizons proven
+    to have no plan so far. The search of a horizon proven meanwhile is stopped
+    (:meth:`searching`)."""
+
+    def __init__(self, form: Callable[[int], StandardForm], options: SolveOptions,
+                 first_slice_s: float = 1.0) -> None:
+        require()  # here, not on its thread
+        self._form, self._options = form, options
+        self._first_slice = first_slice_s
+        self._proven: dict[int, Proof] = {}
+        self._asked: list[int] = []
+        self._slice: dict[int, float] = {}
+        self._searched: tuple[int, Interrupt] | None = None
+        self._stop = Interrupt()
+        self._wake = threading.Condition()
+        self._failure: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="cpsat-prover", daemon=True)
+        self._thread.start()
+
+    def ask(self, horizons: Iterable[int]) -> None:
+        """Prove these horizons (and no others), in this order where their slices are equal."""
+        with self._wake:
+            self._asked = list(horizons)
+            self._wake.notify()
+
+    @contextmanager
+    def searching(self, horizon: int, options: SolveOptions) -> Iterator[SolveOptions]:
+        """``options`` for the search of ``horizon``, with a stop request of its own that the
+        prover sets once it proves the horizon (and ``options.interrupt`` sets too)."""
+        stop = Interrupt()
+        with self._wake:
+            self._searched = (horizon, stop)
+            if horizon in self._proven:
+                stop.set()
+        with options.interrupt.watch(stop.set) if options.interrupt else nullcontext():
+            try:
+                yield replace(options, interrupt=stop)
+            finally:
+                with self._wake:
+                    self._searched = None
+
+    def proofs(self) -> dict[int, Proof]:
+        """The horizons proven to have no plan so far, and their proofs."""
+        with self._wake:
+            return dict(self._proven)
+
+    def close(self) -> dict[int, Proof]:
+        """Stop the prover; the horizons it proved, and their proofs."""
+        with self._wake:
+            self._stop.set()
+            self._wake.notify()
+        while self._thread.is_alive():
+            self._thread.join(0.1)
+            # again: a stop request that came as CP-SAT was starting is lost on it
+            self._stop.set()
+        if self._failure is not None:
+            raise self._failure
+        return self.proofs()
+
+    def _next(self) -> tuple[int, float] | None:
+        """The horizon to try next and its slice (the least tried first), if any."""
+        ready = [T for T in self._asked if T not in self._proven]
+        if not ready:
+            return None
+        T = min(ready, key=lambda T: self._slice.get(T, self._first_slice))
+        return T, self._slice.setdefault(T, self._first_slice)
+
+    def _run(self) -> None:
+        relaxations: dict[int, Relaxation | None] = {}
+        parent = self._options.interrupt
+        try:
+            with parent.watch(self._stop.set) if parent else nullcontext():
+                while not self._stop.is_set():
+                    with self._wake:
+                        task = self._next()
+                        if task is None:
+                            if not self._stop.is_set():  # set under the lock by close()
+                                self._wake.wait()
+                            continue
+                    T, span = task
+                    if T not in relaxations:
+                        try:
+                            relaxations[T] = Relaxation(self._form(T))
+                        except ValueError:  # a column it cannot bound: never proven
+                            relaxations[T] = None
+                    if relaxations[T] is None:
+                        with self._wake:
+                            self._asked.remove(T)
+                        continue
+                    proof = relaxations[T].solve(replace(self._options, time_limit_s=span,
+                                                         interrupt=self._stop))
+                    with self._wake:
+                        self._slice[T] = 4 * span
+                        if proof.status is Status.INFEASIBLE:
+                            self._proven[T] = proof
+                            if self._searched is not None and self._searched[0] == T:
+                                self._searched[1].set()
+        except BaseException as err:  # raised again by close()
+            self._failure = err
 
 
 def _empty(f: StandardForm, A: sp.csr_matrix, row_lb: np.ndarray, row_ub: np.ndarray) -> str:

@@ -59,6 +59,9 @@ class StepResult:
     minimal: bool = False
     witness_cost: float | None = None
     witness_horizon: int | None = None
+    # the horizons below this one that the second prover (solver.prover) proved to have no
+    # plan, the search having left them undecided
+    proofs: tuple[int, ...] = ()
 
 
 def solve_options(scenario: Scenario, time_limit_s: float | None = None) -> SolveOptions:

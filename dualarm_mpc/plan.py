@@ -90,6 +90,8 @@ class Segment:
     horizon_proven_minimal: bool = False
     witness_cost: float | None = None  # the no-throw witness's (sequential.witness), if any
     witness_horizon: int | None = None
+    # the shorter horizons proven to have no plan by the second prover (solver.prover: cpsat)
+    horizons_proven_by_cpsat: list[int] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {
@@ -106,6 +108,7 @@ class Segment:
             "proven_optimal": self.proven_optimal,
             "witness_cost": self.witness_cost,
             "witness_horizon": self.witness_horizon,
+            "horizons_proven_by_cpsat": self.horizons_proven_by_cpsat,
         }
 
     @property

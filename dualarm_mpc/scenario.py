@@ -149,6 +149,10 @@ class SolverSettings:
     # first and the horizons below it within one budget per step (skeleton search); "exact",
     # Algorithm 1 as the paper, every horizon from predictT up to the first plan.
     horizons: str = "witness"
+    # The second prover of the horizons the search leaves undecided (sequential.py, cpsat.py):
+    # "cpsat", OR-Tools' CP-SAT on a sound integer relaxation (the default where OR-Tools is
+    # installed), or "none".
+    prover: str = field(default_factory=lambda: "cpsat" if ortools_installed() else "none")
     # threads solving the skeleton search's independent programs at once
     workers: int = field(default=2, metadata=_in(1, 64))
     # Closed loop (docs/drake.md, "Lockstep and real time"). Lockstep by default: the
@@ -177,6 +181,11 @@ class SolverSettings:
         if self.horizons not in ("witness", "exact"):
             raise ScenarioError(f"solver.horizons: expected 'witness' or 'exact', got "
                                 f"{self.horizons!r}")
+        if self.prover not in ("cpsat", "none"):
+            raise ScenarioError(f"solver.prover: expected 'cpsat' or 'none', got {self.prover!r}")
+        if self.prover == "cpsat" and not ortools_installed():
+            raise ScenarioError("solver.prover: 'cpsat' needs OR-Tools, which is not installed "
+                                "here (pip install 'dualarm_mpc[ortools]', or solver.prover: none)")
         if self.handover not in ("auto", "always", "never"):
             raise ScenarioError(f"solver.handover: expected 'auto', 'always' or 'never', got "
                                 f"{self.handover!r}")

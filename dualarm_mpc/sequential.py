@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
-from dualarm_mpc.horizon import StepResult, solve_options, solve_step
+from dualarm_mpc.horizon import HorizonProgram, StepResult, solve_options, solve_step
 from dualarm_mpc.mld import Model, Rect, State, delivered_objects, in_goal, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.route import horizon_bound
@@ -34,6 +35,10 @@ CAP_CHECK_TIME_S = 3.0  # the whole of that check
 STEP_BUDGET_SHARE = 1 / 3
 FIRST_SLICE_SHARE = 1 / 8
 MIN_HORIZON_TIME_S = 1.0
+# The second prover (solver.prover, cpsat.Prover) takes the horizons the search has left
+# undecided, beside the search's next ones: its first slice on each, as a share of the time
+# limit (under the witness policy, the search's first slice).
+PROVER_FIRST_SLICE_SHARE = 1 / 16
 
 
 class PlanningError(RuntimeError):
@@ -148,8 +153,11 @@ def witness(scenario: Scenario, state: State, spec: Specification,
     if horizon_bound(model, state.select(objects), spec.m_o, frozenset(range(len(objects))),
                      cap) > cap:
         return None  # no route delivers m_o objects without a throw (§V-C's goals)
+    # without the second prover: the witness's own horizons need no proofs
+    alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
+                                                                     prover="none"))
     try:
-        res = first_plan(scenario, state, restricted, options)
+        res = first_plan(alone, state, restricted, options)
     except PlanningError:
         return None
     if not satisfies(scenario, state, spec, model, res.trajectory):
@@ -168,35 +176,48 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     All of it within one budget for the step, ``STEP_BUDGET_SHARE`` of
     ``solver.time_limit_s``, in rounds: each horizon still undecided gets ``FIRST_SLICE_SHARE``
     of the budget, four times as much in the next round, so that one hard horizon does not
-    take the time the others would be decided in. The step's horizon is proven minimal
-    (:attr:`StepResult.minimal`) when every horizon below it was proven to have no plan."""
+    take the time the others would be decided in. Beside the search, the second prover
+    (:func:`second_prover`) tries to prove the horizons below T₁ that the search has left
+    undecided to have no plan. The step's horizon is proven minimal (:attr:`StepResult.minimal`)
+    when every horizon below it was proven to have no plan, by either."""
     options = options or solve_options(scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
     undecided = list(range(predict_horizon(scenario, state, spec), found.horizon + 1))
+    left_open: set[int] = set()  # the horizons the search has left undecided once
     first = None  # the plan of the lowest horizon that has one
     slice_s = FIRST_SLICE_SHARE * budget
-    while undecided:
-        for T in list(undecided):
-            _stop_if_asked(options)
-            left = deadline - time.perf_counter()
-            if left < MIN_HORIZON_TIME_S:
+    with second_prover(scenario, state, spec, options, slice_s, on_try) as prover:
+        while undecided:
+            for T in list(undecided):
+                undecided = [t for t in undecided if t not in prover.proofs()]
+                if T not in undecided:
+                    continue
+                _stop_if_asked(options)
+                left = deadline - time.perf_counter()
+                if left < MIN_HORIZON_TIME_S:
+                    break
+                limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
+                with prover.searching(T, dataclasses.replace(options, time_limit_s=limit)) as o:
+                    res = solve_horizon(scenario, state, spec, T, o)
+                _stop_if_asked(options)
+                if on_try:
+                    on_try(res)
+                if res.status.has_solution:
+                    first = res
+                    undecided = [t for t in undecided if t < T]  # the higher ones matter no more
+                elif res.status is Status.INFEASIBLE:
+                    undecided.remove(T)
+                else:
+                    left_open.add(T)
+                prover.ask([t for t in undecided if t in left_open and t < found.horizon])
+                if first is res:
+                    break
+            if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
                 break
-            limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
-            res = solve_horizon(scenario, state, spec, T,
-                                dataclasses.replace(options, time_limit_s=limit))
-            _stop_if_asked(options)
-            if on_try:
-                on_try(res)
-            if res.status.has_solution:
-                first = res
-                undecided = [t for t in undecided if t < T]  # the higher ones matter no more
-                break
-            if res.status is Status.INFEASIBLE:
-                undecided.remove(T)
-        if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
-            break
-        slice_s *= 4
+            slice_s *= 4
+    proofs = prover.proofs()
+    undecided = [t for t in undecided if t not in proofs]
     if first is not None and first.cost < found.cost:
         best = first
     else:  # not proven optimal at T₁: the witness's bound holds for the restriction only
@@ -204,7 +225,8 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     minimal = ((first is None or first.horizon == best.horizon)
                and not [t for t in undecided if t < best.horizon])
     return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,
-                               witness_horizon=found.horizon)
+                               witness_horizon=found.horizon,
+                               proofs=_shorter(proofs, best.horizon))
 
 
 def first_plan(scenario: Scenario, state: State, spec: Specification,
@@ -212,7 +234,9 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
                on_try: Callable[[StepResult], None] | None = None) -> StepResult:
     """Lines 4–6 of Algorithm 1 as the paper: from predictT, raise T until a plan is found (an
     infeasible or timed-out horizon counts as "not yet"; the result's ``minimal`` says whether
-    every one was proven infeasible).
+    every one was proven infeasible: by the search, or by the second prover
+    (:func:`second_prover`), which works on the horizons the search left undecided beside its
+    next ones).
 
     With the skeleton search and a specification whose feasibility is monotone in T
     (:meth:`Specification.monotone_in_horizon`), once the step went ``CHECK_CAP_AFTER_S``
@@ -224,24 +248,80 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
     last = None
     check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
     below: dict = {}  # the search's relaxations with a plan, from one horizon to the next
-    proven = True  # every horizon tried was proven infeasible
-    for T in range(predict_horizon(scenario, state, spec), cap + 1):
-        _stop_if_asked(options)
-        if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
-            check_cap = False  # once
-            if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S, options):
-                raise PlanningError(diagnose(scenario, state, spec, None, options), proven=True)
-        res = solve_horizon(scenario, state, spec, T, options, below=below)
-        _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
-        if on_try:
-            on_try(res)
-        last = res
-        if res.status.has_solution:
-            return dataclasses.replace(res, minimal=proven)
-        proven = proven and res.status is Status.INFEASIBLE
-        if res.status is Status.ERROR:
-            break
+    undecided: list[int] = []  # the horizons tried without a plan or a proof of none
+    options = options or solve_options(scenario)
+    first_slice = PROVER_FIRST_SLICE_SHARE * options.time_limit_s
+    with second_prover(scenario, state, spec, options, first_slice, on_try) as prover:
+        for T in range(predict_horizon(scenario, state, spec), cap + 1):
+            _stop_if_asked(options)
+            if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
+                check_cap = False  # once
+                if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S, options):
+                    raise PlanningError(diagnose(scenario, state, spec, None, options),
+                                        proven=True)
+            res = solve_horizon(scenario, state, spec, T, options, below=below)
+            _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
+            if on_try:
+                on_try(res)
+            last = res
+            if res.status.has_solution:
+                break
+            if res.status is not Status.INFEASIBLE:
+                undecided.append(T)
+                prover.ask(undecided)
+            if res.status is Status.ERROR:
+                break
+    proofs = prover.proofs()
+    proven = not [t for t in undecided if t not in proofs]
+    if last is not None and last.status.has_solution:
+        return dataclasses.replace(last, minimal=proven, proofs=_shorter(proofs, last.horizon))
     raise PlanningError(diagnose(scenario, state, spec, last, options), proven=proven)
+
+
+@contextmanager
+def second_prover(scenario: Scenario, state: State, spec: Specification,
+                  options: SolveOptions, first_slice_s: float,
+                  on_try: Callable[[StepResult], None] | None = None) -> Iterator:
+    """The scenario's second prover (``solver.prover``) of the step's horizons, for the length
+    of a ``with``: :class:`cpsat.Prover` on the horizons' programs, each proof told to
+    ``on_try`` as an infeasible horizon at the end; or, with ``none``, one that proves nothing.
+    Never in a replan: ``mpc.py`` solves its horizons itself, in lockstep by counted work
+    alone."""
+    if scenario.solver.prover == "none":
+        yield _NoProver()
+        return
+    from dualarm_mpc.cpsat import Prover
+
+    objects = list(spec.objects)
+    prover = Prover(lambda T: HorizonProgram(scenario, state, objects, T).standard_form(spec),
+                    options, first_slice_s=first_slice_s)
+    try:
+        yield prover
+    finally:
+        proofs = prover.close()
+    for T, proof in sorted(proofs.items()):
+        if on_try:
+            on_try(StepResult(Status.INFEASIBLE, T, None, np.inf, proof.wall_time_s, 0.0, np.inf,
+                              proof.binaries, None, message=proof.message, bound=np.inf))
+
+
+def _shorter(proofs: dict, horizon: int) -> tuple[int, ...]:
+    """The horizons proven below ``horizon``."""
+    return tuple(sorted(T for T in proofs if T < horizon))
+
+
+class _NoProver:
+    """``solver.prover: none``: proves nothing."""
+
+    def ask(self, horizons) -> None:
+        pass
+
+    @contextmanager
+    def searching(self, horizon: int, options: SolveOptions) -> Iterator[SolveOptions]:
+        yield options
+
+    def proofs(self) -> dict:
+        return {}
 
 
 def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepResult | None,
@@ -350,7 +430,8 @@ def plan(scenario: Scenario, options: SolveOptions | None = None,
                       status=res.status.value, solve_time_s=total, cost=res.cost,
                       cpu_time_s=cpu, binaries=res.binaries, gap=float(res.gap),
                       horizon_proven_minimal=res.minimal,
-                      witness_cost=res.witness_cost, witness_horizon=res.witness_horizon)
+                      witness_cost=res.witness_cost, witness_horizon=res.witness_horizon,
+                      horizons_proven_by_cpsat=list(res.proofs))
         segments.append(seg)
         if progress:
             progress(seg)
