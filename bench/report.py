@@ -108,7 +108,8 @@ def provenance(name: str, data: dict, commit: bool) -> str:
 def render_paper(results: Path) -> str:
     """Our Table II beside the paper's, every ``table2*.json`` pooled (one run per row, rule,
     horizon policy and seed: a run recorded twice is an error), counting form and skeleton search
-    only; a row per horizon policy (records older than ``solver.horizons`` ran ``exact``)."""
+    only; a row per horizon policy and second prover (records older than ``solver.horizons`` ran
+    ``exact``, those older than ``solver.prover`` none)."""
     table2 = importlib.import_module("table2")
     files = sorted(p.name for p in results.glob("table2*.json"))
     runs, seen = [], {}
@@ -117,7 +118,8 @@ def render_paper(results: Path) -> str:
         for r in data["runs"]:
             if r["task_form"] != "counting" or r["search"] != "skeleton":
                 continue
-            r = {**r, "horizons": r.get("horizons", "exact")}
+            r = {**r, "horizons": r.get("horizons", "exact") + (
+                " + CP-SAT" if r.get("prover", "none") == "cpsat" else "")}
             key = (r["m_o"], r["n_o"], r["rule"], r["horizons"], r["seed"])
             if key in seen:
                 raise RecordError(f"({key[0]},{key[1]}) rule {key[2]} horizons {key[3]} seed "
