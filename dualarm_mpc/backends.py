@@ -123,8 +123,8 @@ def highs(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
     stop = options.interrupt
     if stop is not None:
         # Polled at HiGHS's MIP interrupt checks only: highspy's HandleUserInterrupt also
-        # hooks every simplex check, each a call into Python that waits for the GIL (a (2,5)
-        # rule-1 plan 2.19 → 2.11 s, A/B over two rounds).
+        # hooks every simplex check, each a call into Python that waits for the GIL
+        # (bench/search-experiments.md, "Settings of the search").
         h.cbMipInterrupt += lambda event: event.interrupt() if stop.is_set() else None
     h.run()
     status = h.getModelStatus()

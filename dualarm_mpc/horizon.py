@@ -30,6 +30,7 @@ from dualarm_mpc.route import Order
 from dualarm_mpc.scenario import Scenario
 from dualarm_mpc.solver import (
     SolveOptions,
+    SolveResult,
     StandardForm,
     Start,
     Status,
@@ -62,6 +63,29 @@ class StepResult:
     # the horizons below this one that the second prover (solver.prover) proved to have no
     # plan, the search having left them undecided
     proofs: tuple[int, ...] = ()
+
+    @classmethod
+    def solved(cls, result: SolveResult, horizon: int, build_time_s: float, binaries: int,
+               variables: program.HorizonVariables, trajectory: Trajectory | None = None,
+               cost: float = np.inf) -> StepResult:
+        """A solve of ``horizon``: with its re-simulated ``trajectory`` and its ``cost`` when
+        the solver found a solution."""
+        return cls(result.status, horizon, trajectory, cost, result.wall_time_s, build_time_s,
+                   result.gap, binaries, None if trajectory is None else result.x, variables,
+                   result.message, bound=result.bound)
+
+    @classmethod
+    def replayed(cls, status: Status, horizon: int, trajectory: Trajectory, cost: float,
+                 gap: float = 0.0) -> StepResult:
+        """A plan made by re-simulating forces and grasps, not by a solve (no solver values)."""
+        return cls(status, horizon, trajectory, cost, 0.0, 0.0, gap, 0, None)
+
+    @classmethod
+    def no_plan(cls, status: Status, horizon: int, bound: float = 0.0,
+                solve_time_s: float = 0.0, binaries: int = 0, message: str = "") -> StepResult:
+        """No plan at ``horizon``: ``status`` says why, ``bound`` what is proven."""
+        return cls(status, horizon, None, np.inf, solve_time_s, 0.0, np.inf, binaries, None,
+                   message=message, bound=bound)
 
 
 def solve_options(scenario: Scenario, time_limit_s: float | None = None) -> SolveOptions:
@@ -237,15 +261,12 @@ class HorizonProgram:
         result = solve_standard_form(f, options, start(x) if start else None)
         binaries = int(x.binaries.size)
         if not result.status.has_solution:
-            return StepResult(result.status, self.horizon, None, np.inf, result.wall_time_s,
-                              build, result.gap, binaries, None, x, result.message,
-                              bound=result.bound)
+            return StepResult.solved(result, self.horizon, build, binaries, x)
         values = result.x
         force = values[x.force]
         traj = replay(self.model, self.local_state, force, np.round(values[x.eta]).astype(int))
         cost = float(np.abs(force[:, list(narrow.get("hands", (0, 1)))]).sum())
-        return StepResult(result.status, self.horizon, traj, cost, result.wall_time_s, build,
-                          result.gap, binaries, values, x, result.message, bound=result.bound)
+        return StepResult.solved(result, self.horizon, build, binaries, x, traj, cost)
 
 
 def build_program(scenario: Scenario, state: State, spec: Specification, horizon: int,

@@ -62,7 +62,7 @@ from dualarm_mpc.spec import Specification, restricted, untouchable
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
 BATCH = 2  # nodes evaluated at once in the best-first loop
 # Relaxations solved at once there: more than the workers, so that one long program does not
-# leave the other worker idle ((3,5) rule 1, seeds 0–4: 33.4 → 31.8 s; (3,6) 31.3 → 29.1 s).
+# leave the other worker idle (measured: bench/search-experiments.md, "Settings of the search").
 FETCH = 4
 # The feasibility pass gives each program at first this share of the horizon's time limit, then
 # four times as much in each later round, until one has a plan or the last round has all the
@@ -76,17 +76,35 @@ FIRST_SLICE = 1 / 16
 
 @dataclass(frozen=True)
 class Node:
-    delivered: tuple[int, ...]  # D, scenario indices
+    targets: tuple[int, ...]  # D, the objects it delivers (scenario indices)
     hands: tuple[int, ...]  # h_j for j in D: 0 (arm 1), 1 (arm 2) or BOTH
     free: frozenset[int] = frozenset()  # outside D and not provably untouchable
 
     def share(self, i: int) -> tuple[int, ...]:
         """S_i: the objects of D that hand i alone delivers."""
-        return tuple(j for j, h in zip(self.delivered, self.hands, strict=True) if h == i)
+        return tuple(j for j, h in zip(self.targets, self.hands, strict=True) if h == i)
 
     @property
     def handed_over(self) -> tuple[int, ...]:
         return self.share(BOTH)
+
+
+@dataclass(frozen=True)
+class HandKey:
+    """The relaxation c_i(S): hand ``hand`` delivers ``share`` alone."""
+
+    hand: int
+    share: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class AloneKey:
+    """The relaxation c(j): both hands deliver ``object`` alone."""
+
+    object: int
+
+
+Key = HandKey | AloneKey  # a relaxation's name
 
 
 @dataclass
@@ -112,11 +130,11 @@ class StepSearch:
     stats: SearchStats = field(default_factory=SearchStats)
     # The relaxations with a plan at the horizon below (a step tries its horizons one by one):
     # each plan, idled one more step, stands for this horizon's feasibility probe.
-    below: dict[tuple, StepResult] = field(default_factory=dict)
+    below: dict[Key, StepResult] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self._relax: dict[tuple, StepResult] = {}
-        self._exact: set = set()  # keys of the relaxations solved to optimality
+        self._relax: dict[Key, StepResult] = {}
+        self._exact: set[Key] = set()  # keys of the relaxations solved to optimality
         self._witness: StepResult | None = None  # a plan the feasibility pass found
         self._slice = np.inf  # the time a program may take (the feasibility pass's rounds)
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
@@ -211,9 +229,7 @@ class StepSearch:
             allowed[i, self._local[j]] = True
         return allowed
 
-    # A relaxation is named by a key: ("hand", i, S) for c_i(S), ("alone", j) for c(j).
-
-    def _compute(self, key: tuple, exact: bool, cutoff: float = np.inf) -> StepResult:
+    def _compute(self, key: Key, exact: bool, cutoff: float = np.inf) -> StepResult:
         # An object held now may stay held by either hand: untouching it is not free (it would
         # slide off), so every relaxation leaves it as the node programs may.
         held = [(i, j) for j in self._held for i in range(N_HANDS)]
@@ -221,12 +237,12 @@ class StepSearch:
             idled = self._idled(self.below[key], key)
             if idled is not None:
                 return idled
-        if key[0] == "alone":
-            j = key[1]
+        if isinstance(key, AloneKey):
+            j = key.object
             return self._solve(restricted(self.spec, (j,), (j,)),
                                self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact,
                                cutoff=cutoff)
-        _, i, share = key
+        i, share = key.hand, key.share
         if self._share_ruled_out(i, share):
             return _INFEASIBLE
         floor = np.zeros(N_HANDS)
@@ -252,7 +268,7 @@ class StepSearch:
         return route_steps(self._model, self._program.local_state, i,
                            tuple(self._local[j] for j in share), self._no_throw, self.horizon)
 
-    def _idled(self, plan: StepResult, key: tuple) -> StepResult | None:
+    def _idled(self, plan: StepResult, key: Key) -> StepResult | None:
         """``plan`` of the horizon below with one more step of rest, if it is a plan of this
         horizon's relaxation ``key`` (re-simulated and checked: true whenever the relaxation's
         specification survives idling, as the paper's rules do)."""
@@ -262,11 +278,10 @@ class StepSearch:
         traj = replay(self._model, self._program.local_state,
                       np.concatenate([traj.force, np.zeros((1, N_HANDS, 2))]),
                       np.concatenate([traj.grasp, traj.grasp[-1:]]))
-        share = (key[1],) if key[0] == "alone" else key[2]
+        share = (key.object,) if isinstance(key, AloneKey) else key.share
         if not self._feasible(traj, restricted(self.spec, share, share)):
             return None
-        return StepResult(Status.FEASIBLE, self.horizon, traj, plan.cost, 0.0, 0.0, np.inf, 0,
-                          None)
+        return StepResult.replayed(Status.FEASIBLE, self.horizon, traj, plan.cost, gap=np.inf)
 
     @functools.cached_property
     def _idle(self) -> StepResult | None:
@@ -280,23 +295,23 @@ class StepSearch:
                       np.zeros((self.horizon + 1, N_HANDS, n), int))
         if not self._feasible(traj, restricted(self.spec, (), ())):
             return None
-        return StepResult(Status.OPTIMAL, self.horizon, traj, 0.0, 0.0, 0.0, 0.0, 0, None)
+        return StepResult.replayed(Status.OPTIMAL, self.horizon, traj, 0.0)
 
-    def _wanted(self, key: tuple, exact: bool) -> bool:
+    def _wanted(self, key: Key, exact: bool) -> bool:
         """Not known yet: a probe's answer stands for an exact one only when "infeasible"."""
         res = self._relax.get(key)
         return res is None or (exact and key not in self._exact and res.status.has_solution)
 
-    def fetch(self, requests: Iterable[tuple[tuple, bool]], cutoff: float = np.inf) -> None:
+    def fetch(self, requests: Iterable[tuple[Key, bool]], cutoff: float = np.inf) -> None:
         """Solve the relaxations asked for and not known yet, on every worker at once. With a
         ``cutoff`` (the incumbent), a relaxation that cannot go below it is closed with the
         cutoff as its bound: every node with it is then no better than the incumbent."""
         # The larger share of a balanced node (one object when m_o ≤ 2, a pair when m_o = 3)
         # is solved to optimality even when only probed: that costs little more than its first
-        # solution, and at a horizon with a plan the nodes' bounds need it anyway ((2,5) rule
-        # 1: 2.68 → 2.47 s a plan; (3,6): 36.8 → 34.7 s). Other shares stay probes: with
-        # m_o = 3 the singles are mostly asked at horizons the pairs rule out, where an exact
-        # solve is wasted ((3,5) rule 1 seeds 0–4: 43.8 → 39.2 s; (3,6): 37.5 → 35.3 s).
+        # solution, and at a horizon with a plan the nodes' bounds need it anyway. Other shares
+        # stay probes: with m_o = 3 the singles are mostly asked at horizons the pairs rule
+        # out, where an exact solve is wasted (bench/search-experiments.md, "Settings of the
+        # search").
         requests = [(k, e or self._larger(k)) for k, e in requests]
         todo = list(dict.fromkeys((k, e) for k, e in requests if self._wanted(k, e)))
         results = self._map(lambda ke: self._compute(*ke, cutoff=cutoff), todo)
@@ -306,9 +321,9 @@ class StepSearch:
             if exact:
                 self._exact.add(key)
 
-    def _larger(self, key: tuple) -> bool:
+    def _larger(self, key: Key) -> bool:
         """Whether ``key`` is the larger share of a balanced node (see :meth:`fetch`)."""
-        return key[0] == "hand" and len(key[2]) == (self.spec.m_o + 1) // 2
+        return isinstance(key, HandKey) and len(key.share) == (self.spec.m_o + 1) // 2
 
     def _map(self, f, items: list) -> list:
         """``f`` over ``items``, on every worker at once."""
@@ -316,32 +331,32 @@ class StepSearch:
             return list(self.pool.map(f, items))
         return [f(item) for item in items]
 
-    def relaxations_with_plans(self) -> dict[tuple, StepResult]:
+    def relaxations_with_plans(self) -> dict[Key, StepResult]:
         """The relaxations solved so far that have a plan (for :attr:`below` of the next
         horizon)."""
         return {k: r for k, r in self._relax.items() if r.status.has_solution}
 
-    def relaxation(self, key: tuple, exact: bool = True) -> StepResult:
+    def relaxation(self, key: Key, exact: bool = True) -> StepResult:
         self.fetch([(key, exact)])
         return self._relax[key]
 
     def hand(self, i: int, share: tuple[int, ...], exact: bool = True) -> StepResult:
         """c_i(S): hand i delivers ``share`` alone; the other hand holds nothing, costs nothing."""
-        return self.relaxation(("hand", i, share), exact)
+        return self.relaxation(HandKey(i, share), exact)
 
     def alone(self, j: int, exact: bool = True) -> StepResult:
         """c(j): both hands deliver object j, every other object untouched."""
-        return self.relaxation(("alone", j), exact)
+        return self.relaxation(AloneKey(j), exact)
 
     def _node_spec(self, node: Node) -> Specification:
-        return replace(self.spec, targets=node.delivered, m_o=len(node.delivered),
+        return replace(self.spec, targets=node.targets, m_o=len(node.targets),
                        task_form="counting")
 
     def joint(self, node: Node, start: StepResult | None = None, exact: bool = True,
               cutoff: float = np.inf, spread: bool = False) -> StepResult:
         """The node's own program: the monolithic one restricted to the skeleton; with a
         ``cutoff``, "infeasible" means no plan cheaper than it."""
-        pairs = [(i, j) for j, h in zip(node.delivered, node.hands, strict=True)
+        pairs = [(i, j) for j, h in zip(node.targets, node.hands, strict=True)
                  for i in range(N_HANDS) if h in (i, BOTH)]
         pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
         floor = np.array([self._hand_bound(i, node.share(i)) for i in range(N_HANDS)])
@@ -355,7 +370,7 @@ class StepSearch:
         """A lower bound on c_i(share): its own if solved, else the best of its solved subsets."""
         best = 0.0
         for key, res in list(self._relax.items()):
-            if key[0] == "hand" and key[1] == i and set(key[2]) <= set(share) \
+            if isinstance(key, HandKey) and key.hand == i and set(key.share) <= set(share) \
                     and self._proven(key, res):
                 best = max(best, _bound(res))
         return best
@@ -365,14 +380,14 @@ class StepSearch:
 
     def bound(self, node: Node) -> float:
         split = sum(self._hand_bound(i, node.share(i)) for i in range(N_HANDS))
-        alone = [_bound(self._relax[("alone", j)]) for j in node.delivered
-                 if self._proven(("alone", j), self._relax.get(("alone", j), _UNKNOWN))]
+        alone = [_bound(self._relax[AloneKey(j)]) for j in node.targets
+                 if self._proven(AloneKey(j), self._relax.get(AloneKey(j), _UNKNOWN))]
         return max([split] + alone)
 
-    def missing(self, node: Node) -> list[tuple]:
+    def missing(self, node: Node) -> list[Key]:
         """The relaxations the node's bound still lacks."""
-        keys = [("alone", j) for j in node.handed_over]
-        keys += [("hand", i, node.share(i)) for i in range(N_HANDS)]
+        keys = [AloneKey(j) for j in node.handed_over]
+        keys += [HandKey(i, node.share(i)) for i in range(N_HANDS)]
         return [k for k in keys if not self._proven(k, self._relax.get(k, _UNKNOWN))]
 
     # -- putting the hands together -----------------------------------------------------------
@@ -390,8 +405,7 @@ class StepSearch:
         if self._feasible(traj, self.spec):
             status = (Status.OPTIMAL if all(p.status is Status.OPTIMAL for p in parts)
                       else Status.FEASIBLE)
-            plan = StepResult(status, self.horizon, traj, float(np.abs(force).sum()), 0.0, 0.0,
-                              0.0, 0, None)
+            plan = StepResult.replayed(status, self.horizon, traj, float(np.abs(force).sum()))
         else:
             plan = self._solve(self._node_spec(node), self._mask([]), grasp=grasp, exact=exact)
             plan = plan if plan.status.has_solution else None
@@ -444,16 +458,16 @@ class StepSearch:
         """The objects neither hand can deliver alone but both together can."""
         alone = list(self.spec.objects)
         for i in range(N_HANDS):  # an object one hand delivers needs no second probe
-            self.fetch((("hand", i, (j,)), False) for j in alone)
+            self.fetch((HandKey(i, (j,)), False) for j in alone)
             alone = [j for j in alone
-                     if self._relax[("hand", i, (j,))].status is Status.INFEASIBLE]
+                     if self._relax[HandKey(i, (j,))].status is Status.INFEASIBLE]
         # Under no-throw (18) the first hand to hold j holds it until it is in its goal, so
         # its route bounds c(j)'s horizon too: beyond it for both hands, c(j) has no plan (the
         # route is 0, no bound, for an object held or moving now).
         alone = [j for j in alone if self._local[j] not in self._no_throw
                  or min(self._route(i, (j,)) for i in range(N_HANDS)) <= self.horizon]
-        self.fetch((("alone", j), False) for j in alone)
-        return {j for j in alone if self._relax[("alone", j)].status is not Status.INFEASIBLE}
+        self.fetch((AloneKey(j), False) for j in alone)
+        return {j for j in alone if self._relax[AloneKey(j)].status is not Status.INFEASIBLE}
 
     def nodes(self, handed_over: bool = True) -> list[Node]:
         """The skeletons (D, h) the search covers the plans with: every one with one hand per
@@ -461,32 +475,31 @@ class StepSearch:
         object of D that may be handed over (:meth:`handed_over_objects`) labelled BOTH, the
         others one hand each. A widest node's plans include those of every node that labels
         some of these objects with one hand only, so those are left out: one probe or one
-        solve decides them all, where each of them would need its own ((3,5) rule 2: a
-        horizon's relay pass 17.6 → 10.8 s). Without hand-over labels for every object, the
-        search is exact over the plans in which each object is held by one hand at most; with
-        them (``always``), against the monolithic MILP."""
-        single = [Node(delivered, hands, free) for delivered, free in self._deliveries
-                  for hands in itertools.product((0, 1), repeat=len(delivered))]
+        solve decides them all, where each of them would need its own. Without hand-over
+        labels for every object, the search is exact over the plans in which each object is
+        held by one hand at most; with them (``always``), against the monolithic MILP."""
+        single = [Node(targets, hands, free) for targets, free in self._target_sets
+                  for hands in itertools.product((0, 1), repeat=len(targets))]
         return single + self._widest() if handed_over else single
 
     @functools.cached_property
-    def _deliveries(self) -> list[tuple[tuple[int, ...], frozenset[int]]]:
+    def _target_sets(self) -> list[tuple[tuple[int, ...], frozenset[int]]]:
         """Every D, with its free objects (outside D and not provably untouchable)."""
         deliveries = []
-        for delivered in itertools.combinations(self.spec.objects, self.spec.m_o):
-            quiet = untouchable(self.spec, self.state, delivered)
-            deliveries.append((delivered, frozenset(
-                j for j in self.spec.objects if j not in delivered and j not in quiet)))
+        for targets in itertools.combinations(self.spec.objects, self.spec.m_o):
+            quiet = untouchable(self.spec, self.state, targets)
+            deliveries.append((targets, frozenset(
+                j for j in self.spec.objects if j not in targets and j not in quiet)))
         return deliveries
 
     def _widest(self) -> list[Node]:
         """The widest nodes with hand-overs of each D (see :meth:`nodes`): one, unless some
         object of D may not be handed over."""
         both = self.handed_over_objects()
-        return [Node(delivered, hands, free) for delivered, free in self._deliveries
-                if both.intersection(delivered)
+        return [Node(targets, hands, free) for targets, free in self._target_sets
+                if both.intersection(targets)
                 for hands in itertools.product(*[(BOTH,) if j in both else (0, 1)
-                                                 for j in delivered])]
+                                                 for j in targets])]
 
     def _probe_order(self):
         """The nodes as :meth:`ruled_out` visits them: one hand per object first, then
@@ -513,9 +526,7 @@ class StepSearch:
         plan, alone decide the horizon. A relay can make a horizon feasible that is not
         without one, and the step's horizon is that of Algorithm 1 only if "infeasible" covers
         every plan; nor are relays left for the proof that no other node has a plan, the slow
-        part where they matter ((3,5) rule 2, seed 0, second step: the one-hand pair programs
-        undecided at every horizon up to 20, while a relay node has a plan at 15, found in
-        2 s)."""
+        part where they matter (bench/search-experiments.md, "Settings of the search")."""
         self._slice = FIRST_SLICE * self.options.time_limit_s
         try:
             while True:
@@ -595,7 +606,7 @@ class StepSearch:
             if node in self._ruled:
                 continue
             if n == 1:  # past the first guess, most singles will be needed: all at once
-                self.fetch((("hand", i, (j,)), False)
+                self.fetch((HandKey(i, (j,)), False)
                            for j in self.spec.objects for i in range(N_HANDS))
             # and so will the larger shares of the nodes after it: a few at once
             relaxed = self._relaxations_feasible(
@@ -618,28 +629,28 @@ class StepSearch:
                 break
         return False
 
-    def _relaxations_feasible(self, node: Node, ahead: Iterable[tuple] = ()) -> bool | None:
+    def _relaxations_feasible(self, node: Node, ahead: Iterable[Key] = ()) -> bool | None:
         """True when every relaxation of the node has a solution, False when one is proven
         infeasible, None when one ran out of time (undecided). The ``ahead`` relaxations are
         probed beside the node's, on the workers its own leave idle."""
-        keys = [("alone", j) for j in node.handed_over]
-        keys += [("hand", i, node.share(i)) for i in range(N_HANDS)]
+        keys = [AloneKey(j) for j in node.handed_over]
+        keys += [HandKey(i, node.share(i)) for i in range(N_HANDS)]
         self.fetch((k, False) for k in keys + list(ahead))
         statuses = [self._relax[k].status for k in keys]
         if Status.INFEASIBLE in statuses:
             return False
         return True if all(st.has_solution for st in statuses) else None
 
-    def _ahead(self, nodes: Iterable[Node]) -> list[tuple]:
+    def _ahead(self, nodes: Iterable[Node]) -> list[Key]:
         """The larger shares (solved exactly, see :meth:`fetch`) that the probes of ``nodes``
         will ask for next, up to :data:`FETCH`: unknown, and not ruled out without a solve (by
         an infeasible subset or the route). They would be solved one after another, on one
-        worker; at a horizon with a plan the best-first loop wants their bounds anyway. (All
-        shares ahead: (2,5) rule 1 1.98 → 2.15 s, probes of pairs a plan never needs.)"""
-        keys: list[tuple] = []
+        worker; at a horizon with a plan the best-first loop wants their bounds anyway. (Not
+        all shares ahead: those probe pairs a plan never needs.)"""
+        keys: list[Key] = []
         for node in nodes:
             for i in range(N_HANDS):
-                key = ("hand", i, node.share(i))
+                key = HandKey(i, node.share(i))
                 if key not in keys and self._larger(key) and self._wanted(key, False) \
                         and not self._share_ruled_out(i, node.share(i)):
                     keys.append(key)
@@ -752,8 +763,7 @@ class StepSearch:
         binaries = 3 * (self.horizon + 1) * len(self.spec.objects)
         if best is None:
             status = Status.INFEASIBLE if open_bound == np.inf else Status.TIME_LIMIT
-            return StepResult(status, self.horizon, None, np.inf, wall, 0.0, np.inf, binaries,
-                              None, bound=open_bound)
+            return StepResult.no_plan(status, self.horizon, open_bound, wall, binaries)
         lower = min(open_bound, best.cost)
         gap = max(0.0, (best.cost - lower) / max(abs(best.cost), 1e-12))
         status = Status.OPTIMAL if gap <= self.options.mip_rel_gap + 1e-9 else Status.FEASIBLE
@@ -782,7 +792,7 @@ def satisfies(scenario: Scenario, state: State, spec: Specification, model: Mode
     return evaluate(spec.formula(), value, len(traj.force))
 
 
-_UNKNOWN = StepResult(Status.ERROR, 0, None, np.inf, 0.0, 0.0, np.inf, 0, None)
+_UNKNOWN = StepResult.no_plan(Status.ERROR, 0)
 _INFEASIBLE = replace(_UNKNOWN, status=Status.INFEASIBLE, bound=np.inf)
 
 
@@ -834,7 +844,7 @@ def _bound(res: StepResult) -> float:
 
 @contextmanager
 def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None, below: dict | None = None):
+               options: SolveOptions | None, below: dict[Key, StepResult] | None = None):
     """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
     options = options or solve_options(scenario)
     with ThreadPoolExecutor(scenario.solver.workers) as pool:
@@ -865,7 +875,7 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None,
-                below: dict[tuple, StepResult] | None = None) -> StepResult:
+                below: dict[Key, StepResult] | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
     ``below``: the relaxations with a plan at ``horizon − 1`` (:attr:`StepSearch.below`),
     replaced by this horizon's, for the next horizon of the same step."""

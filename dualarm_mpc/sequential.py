@@ -20,7 +20,13 @@ from dualarm_mpc.mld import Model, Rect, State, delivered_objects, in_goal, reac
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.route import horizon_bound
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, satisfies, search_step
+from dualarm_mpc.search import (
+    Key,
+    horizon_has_plan,
+    horizon_ruled_out,
+    satisfies,
+    search_step,
+)
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, rule_formulas, specification, with_no_throw
 
@@ -75,7 +81,7 @@ def _stop_if_asked(options: SolveOptions | None) -> None:
 
 def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
                   options: SolveOptions | None = None, start=None,
-                  below: dict | None = None) -> StepResult:
+                  below: dict[Key, StepResult] | None = None) -> StepResult:
     """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
     the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
     is a MIP start for the monolithic MILP (:func:`horizon.solve_step`); ``below`` carries the
@@ -247,7 +253,7 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
     cap = scenario.solver.max_horizon
     last = None
     check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
-    below: dict = {}  # the search's relaxations with a plan, from one horizon to the next
+    below: dict[Key, StepResult] = {}  # the relaxations with a plan, from horizon to horizon
     undecided: list[int] = []  # the horizons tried without a plan or a proof of none
     options = options or solve_options(scenario)
     first_slice = PROVER_FIRST_SLICE_SHARE * options.time_limit_s
@@ -301,8 +307,8 @@ def second_prover(scenario: Scenario, state: State, spec: Specification,
         proofs = prover.close()
     for T, proof in sorted(proofs.items()):
         if on_try:
-            on_try(StepResult(Status.INFEASIBLE, T, None, np.inf, proof.wall_time_s, 0.0, np.inf,
-                              proof.binaries, None, message=proof.message, bound=np.inf))
+            on_try(StepResult.no_plan(Status.INFEASIBLE, T, np.inf, proof.wall_time_s,
+                                      proof.binaries, proof.message))
 
 
 def _shorter(proofs: dict, horizon: int) -> tuple[int, ...]:

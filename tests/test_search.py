@@ -23,7 +23,7 @@ from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.ltl import Atom, parse
 from dualarm_mpc.mld import POSITION_TOL, Model, State, replay, violations
 from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.search import BOTH, StepSearch, search_step
+from dualarm_mpc.search import BOTH, HandKey, StepSearch, search_step
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import (
     RULE_TEXT,
@@ -182,8 +182,8 @@ def test_the_nodes_cover_every_labelling_with_one_widest_hand_over_node_per_deli
     search = StepSearch(s, State.initial(s), spec, 10, SolveOptions(time_limit_s=5),
                         handover="always")
     nodes = search.nodes()
-    for delivered in itertools.combinations(spec.objects, 2):
-        mine = [n.hands for n in nodes if n.delivered == delivered]
+    for targets in itertools.combinations(spec.objects, 2):
+        mine = [n.hands for n in nodes if n.targets == targets]
         assert mine.count((BOTH, BOTH)) == 1 and len(mine) == 2 ** 2 + 1
         for hands in itertools.product((0, 1, BOTH), repeat=2):  # every plan's skeleton
             assert any(all(h in (g, BOTH) for g, h in zip(hands, node, strict=True))
@@ -222,7 +222,7 @@ class OneHandSharesRunOut(StepSearch):
 
     def _compute(self, key, exact, cutoff=np.inf):
         res = super()._compute(key, exact, cutoff)
-        if key[0] == "hand" and key[2]:
+        if isinstance(key, HandKey) and key.share:
             return dataclasses.replace(res, status=Status.TIME_LIMIT, trajectory=None)
         return res
 
@@ -318,7 +318,7 @@ class SlowFirstNode(StepSearch):
     def __post_init__(self) -> None:
         super().__post_init__()
         first = self.nodes(handed_over=False)[0]
-        self.slow = {("hand", i, first.share(i)) for i in (0, 1)}
+        self.slow = {HandKey(i, first.share(i)) for i in (0, 1)}
         self.slices: list[float] = []
 
     def _compute(self, key, exact, cutoff=np.inf):
