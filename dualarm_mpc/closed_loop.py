@@ -69,6 +69,10 @@ class Summary:
     # The deepest any hand geometry (tip, quill) reached into any object's box over the run,
     # sampled as ``min_arm_clearance_m`` (0 if none ever did); None if the run took no sample.
     max_hand_penetration_m: float | None = None
+    # Pairs of objects that touched while one of them moved (a box shoved by another), from the
+    # plant's contact results sampled as the clearances (systems/object_contacts.py), by when
+    # they first did: {objects: [name, name], t: first sample, samples: how many found it}.
+    object_contacts: list[dict] = field(default_factory=list)
     # What the run took on this machine, which depends on its speed and load: ``wall_time_s``,
     # ``realtime_factor`` (simulated / wall time) and ``replan_wall_s`` (one per replan, as in
     # ``replans``). In the JSON only in real time, where it explains the run; in lockstep the
@@ -281,6 +285,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         interrupted=interrupted,
         min_arm_clearance_m=_least(dual.clearance, context),
         max_hand_penetration_m=_penetration(_least(dual.hand_clearance, context)),
+        object_contacts=_object_contacts(scenario, dual, context),
         wall_clock={"wall_time_s": round(wall, 3),
                     "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),
                     "replan_wall_s": [round(r.wall_s, 4) for r in replans]},
@@ -295,6 +300,18 @@ def _least(clearance, context) -> float | None:
     if not np.isfinite(least):
         return None
     return math.floor(least * 1e4) / 1e4
+
+
+def _object_contacts(scenario: Scenario, dual, context) -> list[dict]:
+    seen = dual.object_contacts
+    own = seen.GetMyContextFromRoot(context)
+    first = seen.get_first_contact_output_port().Eval(own)
+    samples = seen.get_contact_samples_output_port().Eval(own)
+    names = [o.name for o in scenario.task.objects]
+    touched = [{"objects": [names[a], names[b]], "t": round(float(first[k]), 3),
+                "samples": int(samples[k])}
+               for k, (a, b) in enumerate(seen.pairs()) if np.isfinite(first[k])]
+    return sorted(touched, key=lambda c: (c["t"], c["objects"]))
 
 
 def _penetration(least: float | None) -> float | None:

@@ -5,7 +5,8 @@
     GoalSource ─goals─▶ MpcPlanner ─plan─▶ Interpolator ─▶ Controller ─▶ MultibodyPlant ◀─▶ Gripper
                             ▲                                                  │
                             └──────────── measured_state ◀── StateEstimator ◀──┘
-                                  SceneGraph ─query─▶ ArmClearance
+                                  SceneGraph ─query─▶ Clearance ×2
+                       plant ─contact_results─▶ ObjectContacts
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from dualarm_mpc.station import AddControlStack, AddStation, ControlStack, Stati
 from dualarm_mpc.systems.clearance import Clearance
 from dualarm_mpc.systems.goals import GoalSource
 from dualarm_mpc.systems.mpc_planner import MpcPlanner
+from dualarm_mpc.systems.object_contacts import ObjectContacts
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,7 @@ class DualArm:
     clearance: Clearance  # between the two arms
     hand_clearance: Clearance  # between the hands and the objects
     goals: GoalSource
+    object_contacts: ObjectContacts  # pairs of objects that touched while one moved
 
 
 def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
@@ -58,6 +61,13 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     for system in (clearance, hand_clearance):
         builder.Connect(station.scene_graph.get_query_output_port(),
                         system.get_geometry_query_input_port())
+    plant = station.plant
+    contacts_seen = builder.AddNamedSystem("object_contacts",
+                                           ObjectContacts(plant, station.objects))
+    builder.Connect(plant.get_contact_results_output_port(),
+                    contacts_seen.get_contact_results_input_port())
+    builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                    contacts_seen.get_body_spatial_velocities_input_port())
     if meshcat is not None:
         from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
@@ -68,4 +78,5 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
         ApplyVisualizationConfig(config, builder, meshcat=meshcat)
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
-    return DualArm(diagram, station, stack, planner, clearance, hand_clearance, goals)
+    return DualArm(diagram, station, stack, planner, clearance, hand_clearance, goals,
+                   contacts_seen)

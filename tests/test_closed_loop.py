@@ -458,11 +458,12 @@ def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:
     data = json.loads(out.read_text())
     for key in ("mode", "replan_latency_s", "goals", "objects", "final_object_pos",
                 "final_object_speed", "delivered_time_s", "replans", "min_arm_clearance_m",
-                "max_hand_penetration_m"):
+                "max_hand_penetration_m", "object_contacts"):
         assert key in data, key
     assert data["mode"] == "lockstep" and data["replan_latency_s"] == 0.0
     assert "wall_clock" not in data and "real-time factor" in printed.out  # on stdout instead
     assert data["min_arm_clearance_m"] >= MIN_ARM_CLEARANCE
+    assert data["object_contacts"] == []  # one object: nothing to touch
     assert data["goals"] == {"red": [0.225, 0.575, 0.65, 0.95],
                              "green": [-0.175, 0.175, 0.85, 1.15]}
     assert data["objects"] == [{"name": "object1", "goal": "red"}]

@@ -38,6 +38,7 @@ from dualarm_mpc.systems.interpolator import (
     sample_grasp,
     sample_hands,
 )
+from dualarm_mpc.systems.object_contacts import ObjectContacts
 from dualarm_mpc.systems.state_estimator import StateEstimator
 
 G = 9.81
@@ -53,33 +54,42 @@ def one_object_scenario(friction: float = 0.02, slide_time_constant: float | Non
     )
 
 
-def right_hand_plan(nodes, grasps, t0: float = 0.0) -> TimedTrajectory:
-    """One object; the right hand visits ``nodes`` [(p, v)], the left rests at (−0.1, 0)."""
+def right_hand_plan(nodes, grasps, t0: float = 0.0, n: int = 1) -> TimedTrajectory:
+    """The right hand visits ``nodes`` [(p, v)] and holds the first of ``n`` objects where
+    ``grasps``; the left rests at (−0.1, 0)."""
     k = len(nodes) - 1
     hand_pos = np.array([[p, [-0.1, 0.0]] for p, _ in nodes], dtype=float)
     hand_vel = np.array([[v, [0.0, 0.0]] for _, v in nodes], dtype=float)
-    grasp = np.zeros((k + 1, 2, 1), dtype=int)
+    grasp = np.zeros((k + 1, 2, n), dtype=int)
     grasp[:, 0, 0] = grasps
     trajectory = Trajectory(
         hand_pos=hand_pos,
         hand_vel=hand_vel,
         force=np.zeros((k, 2, 2)),
-        object_pos=np.zeros((k + 1, 1, 2)),
-        object_vel=np.zeros((k + 1, 1, 2)),
+        object_pos=np.zeros((k + 1, n, 2)),
+        object_vel=np.zeros((k + 1, n, 2)),
         grasp=grasp,
     )
     return TimedTrajectory(t0=t0, dt=1.0, trajectory=trajectory)
 
 
 class Rig:
-    """Station + control stack fed by a constant plan, ready to simulate."""
+    """Station + control stack fed by a constant plan, ready to simulate; with ``contacts``, an
+    ObjectContacts on the plant's contact results."""
 
-    def __init__(self, scenario: Scenario, plan: TimedTrajectory):
+    def __init__(self, scenario: Scenario, plan: TimedTrajectory, contacts: bool = False):
         builder = DiagramBuilder()
         self.station = AddStation(builder, scenario)
         self.stack = AddControlStack(builder, self.station)
         source = builder.AddSystem(ConstantValueSource(AbstractValue.Make(plan)))
         builder.Connect(source.get_output_port(), self.stack.interpolator.get_plan_input_port())
+        if contacts:
+            plant = self.station.plant
+            self.contacts = builder.AddSystem(ObjectContacts(plant, self.station.objects))
+            builder.Connect(plant.get_contact_results_output_port(),
+                            self.contacts.get_contact_results_input_port())
+            builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                            self.contacts.get_body_spatial_velocities_input_port())
         self.diagram = builder.Build()
         self.simulator = Simulator(self.diagram)
         self.simulator.Initialize()
@@ -479,10 +489,10 @@ def test_pick_drag_and_release_at_rest():
     np.testing.assert_allclose(x.object_vel[0], 0.0, atol=1e-3)
 
 
-def _throw(scenario: Scenario, v: float, until: float = 8.0):
-    """A plan in the Euler model (p(k+1) = p(k) + v(k)): the hand drags the object at v during
-    step 2 and releases it at step 3, where the plan's own hand velocity is already 0; the object
-    leaves at v (the model's v_obj(3) = v_hand(2)). Returns (state at release, at ``until``)."""
+def _throw_plan(v: float, n: int = 1) -> TimedTrajectory:
+    """A plan in the Euler model (p(k+1) = p(k) + v(k)): the hand drags the first of ``n``
+    objects at v during step 2 and releases it at step 3, where the plan's own hand velocity is
+    already 0; the object leaves at v (the model's v_obj(3) = v_hand(2))."""
     nodes = [
         ([0.1, 0.0], [0, 0.1]),
         ([0.1, 0.1], [0, 0.15]),  # grasp begins
@@ -491,7 +501,12 @@ def _throw(scenario: Scenario, v: float, until: float = 8.0):
         ([0.1, 0.25 + v], [0, 0]),
         ([0.1, 0.25 + v], [0, 0]),
     ]
-    rig = Rig(scenario, right_hand_plan(nodes, [0, 1, 1, 0, 0, 0]))
+    return right_hand_plan(nodes, [0, 1, 1, 0, 0, 0], n=n)
+
+
+def _throw(scenario: Scenario, v: float, until: float = 8.0):
+    """:func:`_throw_plan` run: (the state at the release, at ``until``)."""
+    rig = Rig(scenario, _throw_plan(v))
     at_release = rig.advance(3.0)
     assert at_release.grasp[0, 0] == 1
     assert np.linalg.norm(at_release.object_vel[0]) == pytest.approx(v, rel=0.02)
@@ -530,6 +545,32 @@ def test_a_thrown_object_on_the_viscous_table_comes_to_rest_for_good():
     assert np.linalg.norm(x.object_vel[0]) < REST_NOISE
     slide = x.object_pos[0] - at_release.object_pos[0]
     assert slide[1] == pytest.approx(v * 1.0, rel=0.01)
+
+
+@pytest.mark.slow  # seconds of plant simulation
+def test_object_contacts_finds_the_box_a_throw_shoves_and_when():
+    """A box thrown at 0.3 m/s (released at t = 3 s) slides into one resting in its path and
+    shoves it: ObjectContacts records that pair, from a sample after the release, and no other
+    pair (two boxes 1 cm apart, never touched)."""
+    scenario = Scenario(
+        table=Table(friction=0.0, slide_time_constant=1.0),
+        task=Task(goals={"red": [0.2, 0.4, 0.5, 0.7]},
+                  objects=[ObjectSpec("thrown", [0.1, 0.1], "red"),
+                           ObjectSpec("in_its_path", [0.1, 0.65], "red"),
+                           ObjectSpec("c", [-0.4, 0.1], "red"),
+                           ObjectSpec("d", [-0.34, 0.1], "red")]))
+    rig = Rig(scenario, _throw_plan(0.3, n=4), contacts=True)
+    x = rig.advance(8.0)
+    assert x.object_pos[1][1] > 0.7  # shoved
+    seen = rig.contacts
+    context = seen.GetMyContextFromRoot(rig.simulator.get_context())
+    first = seen.get_first_contact_output_port().Eval(context)
+    samples = seen.get_contact_samples_output_port().Eval(context)
+    touched = {pair: (t, s) for pair, t, s in zip(seen.pairs(), first, samples, strict=True)
+               if np.isfinite(t)}
+    assert list(touched) == [(0, 1)]
+    t, s = touched[(0, 1)]
+    assert 3.0 < t < 4.5 and s >= 1
 
 
 def test_gripper_does_not_grab_an_object_out_of_reach():
