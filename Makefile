@@ -11,11 +11,12 @@ $(BIN)/dualarm-mpc: pyproject.toml
 	$(BIN)/pip install -q -e '.[test]'
 	touch $@
 
-# The plan is made as on the robot (simulate.ON_ROBOT): each object aimed at its own slot of its goal.
+# The plan is made as on the robot (closed_loop.ON_ROBOT): each object aimed at its own slot of its
+# goal, keeping 1 cm from the others.
 demo: $(BIN)/dualarm-mpc
 	mkdir -p $(OUT)
 	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --set 'goal_margin: 0.03' --set 'goal_slots: true' \
-		--out $(OUT)/plan.json --plot $(OUT)/plan.png
+		--set 'object_clearance: 0.01' --out $(OUT)/plan.json --plot $(OUT)/plan.png
 	$(BIN)/dualarm-mpc simulate table1_vc --rule 2 --html $(OUT)/replay.html \
 		--summary $(OUT)/summary.json
 

@@ -43,6 +43,10 @@ some horizon up to ``solver.max_horizon`` — it may drop constraints, never add
   Objects that conflict only together (a rule over two objects, two objects for one small goal)
   show here.
 
+The objects' spacing (``object_clearance``, (C1)–(C2)) is left out of every program: one object
+with the others standing where they are now would not be a relaxation (a step may move them out
+of its way first).
+
 For an object no plan can deliver, :func:`_reason` says why in plain words: the geometry (a goal
 beyond the hands' reach) and what each rule of the minimal set forbids.
 """
@@ -151,7 +155,8 @@ def _feasible(scenario: Scenario, state: State, spec: Specification, options: So
     cap = scenario.solver.max_horizon
     undecided = False
     for T in [cap] if spec.monotone_in_horizon() else range(1, cap + 1):
-        program = HorizonProgram(scenario, state, list(spec.objects), T, hands_anywhere=anywhere)
+        program = HorizonProgram(scenario, state, list(spec.objects), T, hands_anywhere=anywhere,
+                                 apart=False)
         for case, allowed in _cases(spec):
             res = program.solve(case, options, hands=(), allowed=allowed)
             if res.status.has_solution:

@@ -24,7 +24,7 @@ from dualarm_mpc import program
 from dualarm_mpc.backends import solve_standard_form
 from dualarm_mpc.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import Model, Rect, State, in_goal, reachability, replay
+from dualarm_mpc.mld import Model, Rect, State, in_goal, reachability, replay, standing
 from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.route import Order
 from dualarm_mpc.scenario import Scenario
@@ -63,22 +63,27 @@ class StepResult:
     # the horizons below this one that the second prover (solver.prover) proved to have no
     # plan, the search having left them undecided
     proofs: tuple[int, ...] = ()
+    # The pairs of objects whose (C1)–(C2) rows the solve needed (HorizonProgram._solve_apart)
+    apart: frozenset[tuple[int, int]] = frozenset()
 
     @classmethod
     def solved(cls, result: SolveResult, horizon: int, build_time_s: float, binaries: int,
                variables: program.HorizonVariables, trajectory: Trajectory | None = None,
-               cost: float = np.inf) -> StepResult:
+               cost: float = np.inf, apart: frozenset[tuple[int, int]] = frozenset()
+               ) -> StepResult:
         """A solve of ``horizon``: with its re-simulated ``trajectory`` and its ``cost`` when
-        the solver found a solution."""
+        the solver found a solution; ``apart``, the pairs whose (C1)–(C2) rows it needed."""
         return cls(result.status, horizon, trajectory, cost, result.wall_time_s, build_time_s,
                    result.gap, binaries, None if trajectory is None else result.x, variables,
-                   result.message, bound=result.bound)
+                   result.message, bound=result.bound, apart=apart)
 
     @classmethod
     def replayed(cls, status: Status, horizon: int, trajectory: Trajectory, cost: float,
-                 gap: float = 0.0) -> StepResult:
-        """A plan made by re-simulating forces and grasps, not by a solve (no solver values)."""
-        return cls(status, horizon, trajectory, cost, 0.0, 0.0, gap, 0, None)
+                 gap: float = 0.0, apart: frozenset[tuple[int, int]] = frozenset()
+                 ) -> StepResult:
+        """A plan made by re-simulating forces and grasps, not by a solve (no solver values);
+        ``apart``, the pairs whose (C1)–(C2) rows the solves it comes from needed."""
+        return cls(status, horizon, trajectory, cost, 0.0, 0.0, gap, 0, None, apart=apart)
 
     @classmethod
     def no_plan(cls, status: Status, horizon: int, bound: float = 0.0,
@@ -134,7 +139,8 @@ class HorizonProgram:
     search (``search.py``) go through it."""
 
     def __init__(self, scenario: Scenario, state: State, objects: list[int], horizon: int,
-                 pruning: bool | None = None, hands_anywhere: bool = False) -> None:
+                 pruning: bool | None = None, hands_anywhere: bool = False,
+                 apart: bool = True) -> None:
         self.scenario, self.state, self.horizon = scenario, state, horizon
         self.objects = list(objects)
         self.model = Model.from_scenario(scenario, self.objects)
@@ -150,6 +156,11 @@ class HorizonProgram:
         program.add_picking(self.prog, x, self.model, self.local_state, reach)
         program.add_system_constraints(self.prog, x, self.model)
         program.add_goal_atoms(self.prog, x, self.model, reach)
+        # apart: the objects keep their spacing, (C1)-(C2), if the scenario gives them one
+        self.apart = None
+        if apart and self.model.spacing is not None:
+            self.apart = program.clearance(x, self.model, self.local_state, reach,
+                                           *standing(state, self.objects, self.model.dt))
         self._hand_cost = program.add_cost(self.prog, x, scenario.task.state_weight)
         self._forms: dict[Specification, StandardForm] = {}
 
@@ -189,7 +200,8 @@ class HorizonProgram:
 
     def standard_form(self, spec: Specification, allowed: np.ndarray | None = None,
                       hands: tuple[int, ...] = (0, 1), grasp: np.ndarray | None = None,
-                      floor: np.ndarray | None = None, orders: tuple[Order, ...] = ()
+                      floor: np.ndarray | None = None, orders: tuple[Order, ...] = (),
+                      relaxed: bool = False, apart: set[tuple[int, int]] | None = None
                       ) -> StandardForm:
         """The MILP of ``spec`` in standard form, narrowed for the skeleton search:
 
@@ -202,7 +214,20 @@ class HorizonProgram:
         * ``orders`` (``route.Order``, one per hand at most): each hand grabs the objects of
           its order in that order — η_ij(k) ≤ Σ_{k' < k} η_ij'(k') for j' the one before j —
           and none before its route allows (η_ij(k) = 0, θ_j(k) = 0 there), nor first
-          grabbed after its latest step (``Order.latest``: Σ_{k ≤ latest} η_ij(k) ≥ 1)."""
+          grabbed after its latest step (``Order.latest``: Σ_{k ≤ latest} η_ij(k) ≥ 1);
+        * ``relaxed``: a relaxation of the programs in which the step's objects it never moves
+          may move: (C1)–(C2) hold only between objects it may move and the standing ones;
+        * ``apart``: the pairs whose (C1)–(C2) rows it has, of those it keeps apart (all by
+          default: the whole program; :meth:`solve` adds them as its solutions need them)."""
+        f = self._narrowed(spec, allowed, hands, grasp, floor, orders)
+        pairs = self._kept_apart(f, relaxed)
+        return self._with_apart(f, pairs if apart is None else pairs & apart)
+
+    def _narrowed(self, spec: Specification, allowed: np.ndarray | None = None,
+                  hands: tuple[int, ...] = (0, 1), grasp: np.ndarray | None = None,
+                  floor: np.ndarray | None = None, orders: tuple[Order, ...] = ()
+                  ) -> StandardForm:
+        """:meth:`standard_form` without (C1)–(C2)."""
         f = self._specified(spec)
         f = dataclasses.replace(f, c=f.c.copy(), col_lb=f.col_lb.copy(), col_ub=f.col_ub.copy())
         f.c[: len(self._hand_cost[0])] = sum(self._hand_cost[i] for i in hands)
@@ -219,6 +244,31 @@ class HorizonProgram:
         for order in orders:
             f = self._ordered(f, order)
         return f
+
+    def _kept_apart(self, f: StandardForm, relaxed: bool) -> set[tuple[int, int]]:
+        """The pairs (j, o) the narrowed program ``f`` keeps apart, (C1)–(C2): all, or in a
+        relaxation those of an object it may move and one it may move or a standing one (an
+        object of the step it holds still may move in the programs it bounds)."""
+        if self.apart is None:
+            return set()
+        pairs = self.apart.pairs()
+        if not relaxed:
+            return pairs
+        n = len(self.objects)
+        moves = (self.state.grasp[:, self.objects].any(axis=0)
+                 | (f.col_ub[self.x.eta[1:]] > 0).any(axis=(0, 1)))
+        return {(j, o) for j, o in pairs if moves[j] and (o >= n or moves[o])}
+
+    def _with_apart(self, f: StandardForm, pairs: set[tuple[int, int]]) -> StandardForm:
+        """``f`` with the (C1)–(C2) rows of ``pairs`` and their side binaries."""
+        if not pairs:
+            return f
+        A, lb, ub, sides = self.apart.rows(self.x, pairs, len(f.c))
+        n = A.shape[1]
+        col_lb, col_ub = np.full(n, -np.inf), np.full(n, np.inf)
+        col_lb[len(f.c):], col_ub[len(f.c):] = 0.0, sides
+        integer = np.arange(n) >= len(f.c)
+        return f.extended(StandardForm(np.zeros(n), 0.0, A, lb, ub, col_lb, col_ub, integer))
 
     def _ordered(self, f: StandardForm, order: Order) -> StandardForm:
         eta = self.x.eta[:, order.hand]
@@ -250,23 +300,57 @@ class HorizonProgram:
 
     def solve(self, spec: Specification, options: SolveOptions,
               start: Callable[[program.HorizonVariables], Start] | None = None,
+              relaxed: bool = False, apart: frozenset[tuple[int, int]] = frozenset(),
               **narrow) -> StepResult:
-        """Solve ``spec`` (narrowed as in :meth:`standard_form`); the trajectory is
-        re-simulated from the solver's forces and grasps through the model (so it is exactly
-        the model's, not the solver's rounding). The cost is that of the costed hands."""
+        """Solve ``spec`` (narrowed as in :meth:`standard_form`, with the (C1)–(C2) rows its
+        solutions need, from those of the pairs ``apart`` on: :meth:`_solve_apart`); the
+        trajectory is re-simulated from the solver's forces and grasps through the model (so
+        it is exactly the model's, not the solver's rounding). The cost is that of the costed
+        hands."""
         x = self.x
         t0 = time.perf_counter()
-        f = self.standard_form(spec, **narrow)
+        f = self._narrowed(spec, **narrow)
         build = time.perf_counter() - t0
-        result = solve_standard_form(f, options, start(x) if start else None)
+        pairs = self._kept_apart(f, relaxed)
+        result, needed = self._solve_apart(f, pairs, pairs & apart, options,
+                                           start(x) if start else None)
         binaries = int(x.binaries.size)
         if not result.status.has_solution:
-            return StepResult.solved(result, self.horizon, build, binaries, x)
-        values = result.x
-        force = values[x.force]
-        traj = replay(self.model, self.local_state, force, np.round(values[x.eta]).astype(int))
+            return StepResult.solved(result, self.horizon, build, binaries, x, apart=needed)
+        result = dataclasses.replace(result, x=result.x[: len(f.c)])  # f's columns: a MIP start
+        force = result.x[x.force]
+        traj = replay(self.model, self.local_state, force, np.round(result.x[x.eta]).astype(int))
         cost = float(np.abs(force[:, list(narrow.get("hands", (0, 1)))]).sum())
-        return StepResult.solved(result, self.horizon, build, binaries, x, traj, cost)
+        return StepResult.solved(result, self.horizon, build, binaries, x, traj, cost, needed)
+
+    def _solve_apart(self, f: StandardForm, pairs: set[tuple[int, int]],
+                     active: set[tuple[int, int]], options: SolveOptions, start: Start | None
+                     ) -> tuple[SolveResult, frozenset[tuple[int, int]]]:
+        """``f`` with the (C1)–(C2) rows of ``pairs`` it needs, and those pairs: solved with
+        the rows of ``active`` first, then with those of every pair its solution breaks too,
+        until none does (each round a relaxation of the next: an infeasible round or its bound
+        holds for the whole). The rows of pairs a plan keeps apart anyway stay out of the
+        program, which would otherwise carry four binaries per pair, object and step
+        (docs/formulation.md, "Objects that keep apart"). Within ``options``' time limit over
+        all rounds; the wall time is their sum."""
+        wall, deadline = 0.0, time.perf_counter() + options.time_limit_s
+        if active and isinstance(start, np.ndarray):  # the columns of f: a partial start
+            start = (np.arange(len(start)), start)
+        while True:
+            result = solve_standard_form(self._with_apart(f, active), options, start)
+            wall += result.wall_time_s
+            broken = (self.apart.broken(self.x, result.x, pairs - active)
+                      if pairs and result.status.has_solution else set())
+            if not broken:
+                return dataclasses.replace(result, wall_time_s=wall), frozenset(active)
+            active = active | broken
+            start = None  # it breaks the rows added
+            left = deadline - time.perf_counter()
+            stop = options.interrupt is not None and options.interrupt.is_set()
+            if left <= 0 or stop:  # no time for the next round: undecided
+                return dataclasses.replace(result, status=Status.TIME_LIMIT, x=None,
+                                           objective=np.inf, gap=np.inf,
+                                           wall_time_s=wall), frozenset(active)
 
 
 def build_program(scenario: Scenario, state: State, spec: Specification, horizon: int,

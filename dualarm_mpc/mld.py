@@ -18,7 +18,9 @@ Model (Δt = ``dt``; arm i = 0 is arm 1, the right arm; objects j):
   At k = 0 the object's velocity is the measured one (the previous step is not part of the horizon).
 * η_ij = 1 → hand i inside the box H_ij around object j (eqs. 10–11), one-sided;
 * (14) an object is held by at most one hand, (15) a hand holds at most one object,
-  (16) ``x_arm2 + gap ≤ x_arm1``.
+  (16) ``x_arm2 + gap ≤ x_arm1``;
+* with ``object_clearance`` (docs/formulation.md, "Objects that keep apart", (C1)–(C2)), an
+  object held or sliding keeps its square clear of every other object's: :func:`crowding`.
 """
 
 from __future__ import annotations
@@ -40,6 +42,11 @@ N_HANDS = 2
 POSITION_TOL = 1e-6  # m: "inside a box" (solver round-off, not physics), model and robot alike
 REST_TOL = 1e-6  # m/s: at rest in the model (planner, verifier, sequential transportation)
 REST_SPEED = 0.01  # m/s: at rest on the robot (MPC planner, closed loop, summary, benches)
+# m: a step's first move, from k = 1 (fixed by the state, which on the robot is measured), keeps
+# the objects' spacing (C1) less this. Measured: a slide that ended 0.14 mm short of its plan's
+# end point left two objects 59.9 mm apart where the plan had 60.1, and a §V-D replan, whose
+# held object was committed to pass on that side, had no plan at any horizon.
+FIRST_MOVE_TOL = 0.005
 
 
 @dataclass(frozen=True)
@@ -169,6 +176,9 @@ class Model:
     workspace: Rect  # hand range
     goals: tuple[Rect, ...]  # goal box of each object, eq. (12)
     grasp_half: np.ndarray  # (N,) half side of H_ij, eq. (11)
+    # (C1): the least distance, per axis, between the centre of an object held or sliding and
+    # any other's (the box size plus ``object_clearance``); None: objects are points (the paper)
+    spacing: float | None = None
 
     @property
     def n_objects(self) -> int:
@@ -186,6 +196,8 @@ class Model:
             workspace=Rect.of(scenario.robot.workspace),
             goals=tuple(target_box(scenario, j) for j in objects),
             grasp_half=np.array([scenario.task.objects[j].grasp_half_size for j in objects], float),
+            spacing=(None if scenario.task.object_clearance is None
+                     else scenario.table.object_size + scenario.task.object_clearance),
         )
 
     def object_region(self, start: np.ndarray) -> Rect:
@@ -280,7 +292,7 @@ def reachability(model: Model, state: State, horizon: int,
                 continue
             # The object is static at p1 from k = 1 until some hand grabs it.
             for k in range(1, T + 1):
-                if _meet(hand_lo[k, i], hand_hi[k, i], p1[j] - half[j], p1[j] + half[j]):
+                if meet(hand_lo[k, i], hand_hi[k, i], p1[j] - half[j], p1[j] + half[j]):
                     first_grab[i, j] = k
                     break
     start = np.where(held, 0, first_grab.min(axis=0))  # (N,) earliest step an object can move
@@ -299,7 +311,7 @@ def reachability(model: Model, state: State, horizon: int,
             if first_grab[i, j] == 0:
                 continue
             for kk in range(1, T + 1):
-                if _meet(hand_lo[kk, i], hand_hi[kk, i], obj_lo[kk, j] - half[j],
+                if meet(hand_lo[kk, i], hand_hi[kk, i], obj_lo[kk, j] - half[j],
                          obj_hi[kk, j] + half[j]):
                     first_grab[i, j] = min(first_grab[i, j], kk)
                     break
@@ -307,13 +319,14 @@ def reachability(model: Model, state: State, horizon: int,
     for j in range(n):
         g = model.goals[j]
         for kk in range(T + 1):
-            if _meet(obj_lo[kk, j], obj_hi[kk, j], g.lo, g.hi):
+            if meet(obj_lo[kk, j], obj_hi[kk, j], g.lo, g.hi):
                 first_goal[j] = kk
                 break
     return Reach(hand_lo, hand_hi, obj_lo, obj_hi, first_grab, first_goal)
 
 
-def _meet(lo1, hi1, lo2, hi2) -> bool:
+def meet(lo1, hi1, lo2, hi2) -> bool:
+    """Whether the boxes [lo1, hi1] and [lo2, hi2] meet (touching counts)."""
     return bool(np.all(lo1 <= hi2 + 1e-12) and np.all(lo2 <= hi1 + 1e-12))
 
 
@@ -372,4 +385,59 @@ def violations(model: Model, traj: Trajectory, tol: float = 1e-5) -> list[str]:
         if d > model.grasp_half[j] + tol:
             out.append(f"eq. (10): hand {i + 1} grabs object {j + 1} at step {k + 1} "
                        f"from {d:.3f} m")
+    return out
+
+
+# --- objects that keep apart (docs/formulation.md, (C1)–(C2)) -----------------------------------
+
+
+def standing(state: State, objects: list[int], dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The objects outside ``objects`` as obstacles of a step: for each, the box (lo, hi), each
+    (M, 2), spanned by where it is and where its slide under way ends (Δt·v on): the model keeps
+    it there for the step (``sequential.embed_step``), the robot lets it slide there."""
+    rest = [j for j in range(len(state.object_pos)) if j not in set(objects)]
+    here = state.object_pos[rest]
+    there = here + dt * state.object_vel[rest]
+    return np.minimum(here, there), np.maximum(here, there)
+
+
+def crowding(model: Model, traj: Trajectory, standing_lo: np.ndarray, standing_hi: np.ndarray,
+             tol: float = 1e-6) -> list[tuple[int, int, int]]:
+    """Every way ``traj`` (one step, its N objects) breaks (C1)–(C2), as (j, o, k): over step k
+    (k ≥ 1) object j of the step, held or sliding (held at k or at k − 1), comes within
+    ``spacing`` of object o of the step, or of standing box o − N (``standing_lo/hi``, as
+    :func:`standing` gives them), o ≥ N. It keeps clear when its centre's straight path from k
+    to k + 1 and the other's lie on one side of a line at ``spacing`` from each other: along
+    some axis the two stay that far apart, at both ends. A pair closer already where the step's
+    first move can begin (k = 1, fixed by the state) keeps that distance instead: it may not
+    shrink; none if it is inside the other's box there. The first move (k = 1) keeps the
+    spacing less ``FIRST_MOVE_TOL``. Empty without a ``spacing``; written apart from the rows
+    of ``program.py``."""
+    if model.spacing is None or traj.steps < 2:
+        return []
+    held = traj.grasp.any(axis=1)  # (K+1, N)
+    moving = held[1:-1] | held[:-2]  # (K-1, N): over [k, k+1], k = 1..K-1
+    p = traj.object_pos
+    n = p.shape[1]
+    boxes = [(p[:, o], p[:, o]) for o in range(n)]  # another object of the step: a point
+    boxes += [(np.broadcast_to(lo, p[:, 0].shape), np.broadcast_to(hi, p[:, 0].shape))
+              for lo, hi in zip(standing_lo, standing_hi, strict=True)]
+
+    def gaps(k: int, j: int, o: int) -> np.ndarray:
+        """How far object j's centre lies beyond box o at step k, along +x, −x, +y, −y."""
+        a, (lo, hi) = p[k, j], (boxes[o][0][k], boxes[o][1][k])
+        return np.array([a[0] - hi[0], lo[0] - a[0], a[1] - hi[1], lo[1] - a[1]])
+
+    out = []
+    for j in range(n):
+        for o in range(j + 1, len(boxes)):
+            spacing = min(model.spacing, gaps(1, j, o).max())
+            if spacing <= 0:  # j starts inside it (a standing box spans a slide): no side
+                continue
+            steps = moving[:, j] | (moving[:, o] if o < n else False)
+            for k in np.flatnonzero(steps) + 1:
+                keep = spacing - (FIRST_MOVE_TOL if k == 1 else 0.0)
+                if keep > 0 and not np.any((gaps(k, j, o) >= keep - tol)
+                                           & (gaps(k + 1, j, o) >= keep - tol)):
+                    out.append((j, o, int(k)))
     return out

@@ -51,6 +51,7 @@ from dualarm_mpc.mld import (
     POSITION_TOL,
     Rect,
     State,
+    standing,
 )
 from dualarm_mpc.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
 from dualarm_mpc.replan_worker import ReplanWorker, Search
@@ -106,6 +107,9 @@ class MpcState:
     delivered_time: tuple[float | None, ...] = ()
     # What the plan in force was proven optimal for (:func:`_step_key`), or None.
     proven: tuple | None = None
+    # Where the objects outside the plan's step stood when it was made (``mld.standing``): the
+    # boxes its objects keep clear of, (C1)–(C2).
+    standing: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class Replanner:
@@ -283,6 +287,7 @@ class Replanner:
                        horizon_end=t + res.horizon * sc.robot.dt,
                        grasp_start=(tuple(objects), res.trajectory.grasp),
                        proven=_step_key(job) if res.status is Status.OPTIMAL else None,
+                       standing=standing(job.state, objects, sc.robot.dt),
                        **job.changes)
 
     def _on_proven_plan(self, t: float, s: MpcState, job: _Job) -> bool:
@@ -297,7 +302,9 @@ class Replanner:
         force neither optimal nor shortest. Its rules hold on the prefix too: the paper's rules
         look at most two steps ahead (no-throw's ``WX WX θ``), and θ one step after k is fixed
         by x(k) (p(k+1) = p(k) + Δt·v(k)). The task must still hold on the rest (◇θ may have
-        held only before k): checked by the evaluator on the rest of the plan."""
+        held only before k): checked by the evaluator on the rest of the plan. With the objects'
+        spacing, (C1)–(C2), the objects outside the step must still stand within the boxes the
+        plan kept clear of (none knocked into its way)."""
         if not self._keep_proven or s.proven is None or s.proven != _step_key(job):
             return False
         traj = s.plan.trajectory
@@ -311,6 +318,9 @@ class Replanner:
                  (x.grasp[:, objects], traj.grasp[k][:, objects])]
         if any(np.abs(a - b).max(initial=0) > POSITION_TOL for a, b in pairs):
             return False
+        if job.scenario.task.object_clearance is not None and not _within(
+                standing(x, objects, job.scenario.robot.dt), s.standing):
+            return False  # an object outside the step moved into its way (C1)
         holds = atom_trace(job.scenario, traj, k, traj.steps)
         return evaluate(job.spec.task(), holds, traj.steps - k)
 
@@ -393,6 +403,14 @@ def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | 
                horizon=None if res is None else res.horizon, objects=new.step_objects,
                n_delivered=sum(d is not None for d in new.delivered_time), note=note)
     return new, r
+
+
+def _within(now: tuple[np.ndarray, np.ndarray], then: tuple[np.ndarray, np.ndarray] | None,
+            tol: float = delivery.KEPT) -> bool:
+    """Whether the standing boxes ``now`` lie within those ``then`` (``mld.standing``, of the
+    same objects), to ``tol``: a plan kept clear of these is still clear of those."""
+    return then is not None and bool(np.all(now[0] >= then[0] - tol)
+                                     and np.all(now[1] <= then[1] + tol))
 
 
 def _step_key(job: _Job) -> tuple:

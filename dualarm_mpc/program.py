@@ -2,7 +2,9 @@
 
 One ``add_<family>`` function per constraint family, built in vectorized blocks (``linear.Rows``)
 with every big-M derived from the scenario's bounds and the reachable boxes of ``mld.reachability``.
-The LTL part is added by ``encoding.py``; this module knows nothing of formulas.
+The LTL part is added by ``encoding.py``; this module knows nothing of formulas. With the objects'
+spacing, :class:`Clearance` holds (C1)–(C2) (ours, docs/formulation.md), whose rows a solve adds
+pair by pair, as its solutions need them (``HorizonProgram.solve``).
 """
 
 from __future__ import annotations
@@ -10,10 +12,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from pydrake.solvers import MathematicalProgram
 
 from dualarm_mpc.linear import Rows, bound, new_variables
-from dualarm_mpc.mld import N_HANDS, Model, Reach, State
+from dualarm_mpc.mld import FIRST_MOVE_TOL, N_HANDS, Model, Reach, State, meet
+
+# The four sides (C1) of another object's square a moving one may keep to: +x, −x, +y, −y
+SIDES = ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))
 
 
 @dataclass(frozen=True)
@@ -186,3 +192,132 @@ def add_cost(prog, x: HorizonVariables, state_weight: float = 0.0) -> list[np.nd
     used = np.flatnonzero(total)
     prog.AddLinearCost(total[used], 0.0, prog.decision_variables()[used])
     return shares
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """(C1)–(C2) of one horizon (docs/formulation.md, "Objects that keep apart"): the triples
+    that can matter, each (j, o, k, d_jo) — object j of the step (local index), the other o
+    (another object of the step, o < N, or standing box o − N, ``mld.standing``), the step k
+    (k ≥ 1) of the segment from k to k + 1, and the spacing it keeps, d_jo = min(d, their
+    distance at k = 1, fixed by the state), d = ``model.spacing`` (less ``mld.FIRST_MOVE_TOL``
+    at k = 1) — and the rows of any of their pairs."""
+
+    n: int  # objects of the step
+    triples: tuple[tuple[int, int, int, float], ...]
+    obstacle_lo: np.ndarray  # (N + M, T+1, 2): the other's reachable box (a standing box: fixed)
+    obstacle_hi: np.ndarray
+    object_lo: np.ndarray  # (T+1, N, 2): the reachable boxes of the step's objects
+    object_hi: np.ndarray
+
+    def pairs(self) -> set[tuple[int, int]]:
+        return {(j, o) for j, o, _, _ in self.triples}
+
+    def rows(self, x: HorizonVariables, pairs: set[tuple[int, int]], columns: int
+             ) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray, np.ndarray]:
+        """The rows (A, lb, ub) of the triples of ``pairs`` over the first ``columns`` columns
+        (the program's and its specification's) and a binary b_σ per side of each triple after
+        them, and each b_σ's upper bound: with r = p_j − p_o (p_o a standing box's face) and
+        σ = (axis a, sign s),
+
+        * (C1) s·r_a(k) ≥ d_jo − M·(1 − b_σ), s·r_a(k + 1) ≥ d_jo − M·(1 − b_σ), M from the
+          reachable boxes (a side they cannot reach is fixed to 0);
+        * (C2) Σ_σ b_σ ≥ held_j(k), held_j(k − 1) (and held_o's, o of the step), with
+          held_j = Σ_i η_ij.
+        """
+        chosen = [t for t in self.triples if (t[0], t[1]) in pairs]
+        rows, side_ub = Rows(), []
+        for t, (j, o, k, d) in enumerate(chosen):
+            ub = []
+            for sigma, (a, sign) in enumerate(SIDES):
+                b = columns + len(SIDES) * t + sigma
+                possible = True
+                for step in (k, k + 1):
+                    # s·r_a over the reachable boxes: low, high
+                    if sign > 0:
+                        low = self.object_lo[step, j, a] - self.obstacle_hi[o, step, a]
+                        high = self.object_hi[step, j, a] - self.obstacle_lo[o, step, a]
+                    else:
+                        low = self.obstacle_lo[o, step, a] - self.object_hi[step, j, a]
+                        high = self.obstacle_hi[o, step, a] - self.object_lo[step, j, a]
+                    M = max(d - low, 0.0)
+                    terms = [(sign, int(x.object_pos[step, j, a])), (-M, b)]
+                    if o < self.n:
+                        terms.append((-sign, int(x.object_pos[step, o, a])))
+                        rows.add_row(terms, lb=d - M)
+                    else:  # the box's face is a constant
+                        face = self.obstacle_hi[o, step, a] if sign > 0 else \
+                            -self.obstacle_lo[o, step, a]
+                        rows.add_row(terms, lb=d - M + face)
+                    possible &= high >= d - 1e-9
+                ub.append(1.0 if possible else 0.0)
+            side_ub += ub
+            sides = [(1.0, columns + len(SIDES) * t + sigma) for sigma in range(len(SIDES))]
+            for obj in (j,) if o >= self.n else (j, o):
+                for step in (k, k - 1):
+                    rows.add_row(sides + [(-1.0, int(x.eta[step, i, obj]))
+                                          for i in range(N_HANDS)], lb=0.0)
+        return (*rows.matrix(columns + len(SIDES) * len(chosen)), np.array(side_ub, float))
+
+    def broken(self, x: HorizonVariables, values: np.ndarray, pairs: set[tuple[int, int]],
+               tol: float = 1e-6) -> set[tuple[int, int]]:
+        """The pairs among ``pairs`` whose (C1)–(C2) the solver's ``values`` break: for a triple
+        whose objects are held at k or k − 1, no side keeps them ``d_jo`` apart at both ends."""
+        held = np.round(values[x.eta]).sum(axis=1) > 0.5  # (T+1, N)
+        p = values[x.object_pos]
+        out = set()
+        for j, o, k, d in self.triples:
+            if (j, o) not in pairs or (j, o) in out:
+                continue
+            if not (held[k, j] or held[k - 1, j] or (o < self.n and (held[k, o]
+                                                                      or held[k - 1, o]))):
+                continue
+            if not any(all(self._beyond(p, j, o, step, a, sign) >= d - tol
+                           for step in (k, k + 1)) for a, sign in SIDES):
+                out.add((j, o))
+        return out
+
+    def _beyond(self, p: np.ndarray, j: int, o: int, step: int, a: int, sign: float) -> float:
+        """s·r_a: how far object j lies beyond the other along axis a, side s, at ``step``."""
+        if o < self.n:
+            return sign * (p[step, j, a] - p[step, o, a])
+        face = self.obstacle_hi[o, step, a] if sign > 0 else self.obstacle_lo[o, step, a]
+        return sign * (p[step, j, a] - face)
+
+
+def clearance(x: HorizonVariables, model: Model, state: State, reach: Reach,
+              standing_lo: np.ndarray, standing_hi: np.ndarray) -> Clearance:
+    """The triples of (C1)–(C2) that can matter: a step k ≥ 1 in which either object may be held
+    (pruning's earliest grabs, §IV-C.2), where their reachable boxes over [k, k + 1], widened by
+    d_jo, meet; and d_jo > 0 (a pair that starts one inside the other keeps no spacing). The
+    first move, k = 1, keeps d_jo less ``mld.FIRST_MOVE_TOL``."""
+    d = model.spacing
+    T = x.horizon
+    p1 = state.object_pos + model.dt * state.object_vel  # where every object is at k = 1
+    n = len(p1)
+    grab = reach.grab_possible().any(axis=1)  # (T+1, N): may be held at k
+    # the others' reachable boxes: the step's objects', then each standing box at every step
+    m = len(standing_lo)
+    obstacle_lo = np.concatenate([reach.object_lo.transpose(1, 0, 2),
+                                  np.broadcast_to(standing_lo[:, None], (m, T + 1, 2))])
+    obstacle_hi = np.concatenate([reach.object_hi.transpose(1, 0, 2),
+                                  np.broadcast_to(standing_hi[:, None], (m, T + 1, 2))])
+    triples = []
+    for j in range(n):
+        for o in range(j + 1, n + m):
+            lo1, hi1 = obstacle_lo[o, 1], obstacle_hi[o, 1]
+            d_jo = min(d, max(p1[j, 0] - hi1[0], lo1[0] - p1[j, 0], p1[j, 1] - hi1[1],
+                              lo1[1] - p1[j, 1]))
+            if d_jo <= 0:
+                continue
+            for k in range(1, T):
+                moves = grab[k - 1:k + 1, j].any() or (o < n and grab[k - 1:k + 1, o].any())
+                near = meet(np.minimum(reach.object_lo[k, j], reach.object_lo[k + 1, j]) - d_jo,
+                            np.maximum(reach.object_hi[k, j], reach.object_hi[k + 1, j]) + d_jo,
+                            np.minimum(obstacle_lo[o, k], obstacle_lo[o, k + 1]),
+                            np.maximum(obstacle_hi[o, k], obstacle_hi[o, k + 1]))
+                keep = d_jo - (FIRST_MOVE_TOL if k == 1 else 0.0)  # the state is measured
+                if moves and near and keep > 0:
+                    triples.append((j, o, k, float(keep)))
+    return Clearance(n, tuple(triples), obstacle_lo, obstacle_hi, reach.object_lo,
+                     reach.object_hi)

@@ -275,7 +275,8 @@ class Robot:
 
 @dataclass
 class Table:
-    """The simulated table and boxes (Drake only: the planner's model has neither)."""
+    """The simulated table and boxes (Drake only, but the boxes' size for the planner's
+    ``object_clearance``)."""
 
     friction: float = field(default=0.0, metadata=_in(0.0, 2.0))  # Coulomb μ, table and objects
     # The table's viscous drag on a sliding object, F = −m·v/τ: it slides v·τ, the model's
@@ -310,6 +311,10 @@ class Task:
     # the planner aims this far inside each goal box (closed loop)
     goal_margin: float = field(default=0.0, metadata=_in(0.0, 1.0))
     goal_slots: bool = False  # aim each object at its own column of its goal (closed loop)
+    # Objects have extent: one held or sliding keeps this gap (m) between its box
+    # (``object_size``) and every other's (docs/formulation.md, (C1)–(C2)); None: points, as in
+    # the paper (``simulate`` sets it, docs/scenarios.md, "The on-robot overrides")
+    object_clearance: float | None = field(default=None, metadata=_in(0.0, 1.0))
 
     def validate(self) -> None:
         if self.random_objects is not None:
@@ -458,6 +463,7 @@ YAML_FIELDS = {
     "pruning": "task.pruning",
     "goal_margin": "task.goal_margin",
     "goal_slots": "task.goal_slots",
+    "object_clearance": "task.object_clearance",
     "solver": "solver",
     "events": "events",
 }

@@ -52,7 +52,17 @@ import numpy as np
 from dualarm_mpc.evaluate import evaluate
 from dualarm_mpc.horizon import HorizonProgram, StepResult, solve_options
 from dualarm_mpc.ltl import Atom
-from dualarm_mpc.mld import N_HANDS, Model, Rect, State, in_goal, replay, violations
+from dualarm_mpc.mld import (
+    N_HANDS,
+    Model,
+    Rect,
+    State,
+    crowding,
+    in_goal,
+    replay,
+    standing,
+    violations,
+)
 from dualarm_mpc.plan import Trajectory
 from dualarm_mpc.route import Order, orders, route_steps
 from dualarm_mpc.scenario import Scenario
@@ -163,16 +173,20 @@ class StepSearch:
 
     def _solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
                start: StepResult | None = None, floor=None, orders=(),
-               exact: bool = True, cutoff: float = np.inf) -> StepResult:
+               exact: bool = True, cutoff: float = np.inf, relaxed: bool = False,
+               apart: frozenset = frozenset()) -> StepResult:
         """One subprogram, MIP-started from ``start``'s plan if given; ``exact`` false stops at
         its first solution (a feasibility probe). With a ``cutoff``, "infeasible" means no plan
-        cheaper than it (``SolveOptions.cutoff``)."""
+        cheaper than it (``SolveOptions.cutoff``). ``relaxed``: a relaxation, whose objects
+        held still may move in the nodes it bounds (``HorizonProgram.standard_form``).
+        ``apart``, and ``start``'s: pairs whose (C1)–(C2) rows it likely needs."""
         remaining = max(min(self._deadline - time.perf_counter(), self._slice), 1e-3)
         options = replace(self.options, time_limit_s=remaining, small_trees=True, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
         res = self._program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
-                                  grasp=grasp, floor=floor, orders=orders)
+                                  grasp=grasp, floor=floor, orders=orders, relaxed=relaxed,
+                                  apart=apart if start is None else apart | start.apart)
         if self.options.work is not None:
             self.options.work.spend()
         if res.status is Status.INFEASIBLE and np.isfinite(cutoff):
@@ -181,7 +195,8 @@ class StepSearch:
 
     def _by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
                   start: StepResult | None = None, floor=None, exact: bool = True,
-                  cutoff: float = np.inf, spread: bool = False) -> StepResult:
+                  cutoff: float = np.inf, spread: bool = False, relaxed: bool = False
+                  ) -> StepResult:
         """A program split by the order in which each hand delivers its share (``shares``,
         one per hand; see :meth:`_orders`): its optimum is the best of the parts', each part
         solved against the best plan of those before (a cutoff), and a probe stops at the
@@ -191,13 +206,14 @@ class StepSearch:
         split = [o for o in (self._orders(i, share) for i, share in shares) if o is not None]
         if not split:
             return self._solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
-                               cutoff=cutoff)
+                               cutoff=cutoff, relaxed=relaxed)
         parts = list(itertools.product(*split))  # the shortest routes first
 
         def solve(part, exact=exact, cutoff=cutoff):
             return self._solve(spec, allowed, hands, floor=floor, orders=part, exact=exact,
                                start=start if all(_follows(start, o) for o in part) else None,
-                               cutoff=cutoff)
+                               cutoff=cutoff, relaxed=relaxed,
+                               apart=frozenset() if start is None else start.apart)
 
         if spread and exact:
             return _best(self._map(solve, parts))
@@ -241,7 +257,7 @@ class StepSearch:
             j = key.object
             return self._solve(restricted(self.spec, (j,), (j,)),
                                self._mask([(i, j) for i in range(N_HANDS)] + held), exact=exact,
-                               cutoff=cutoff)
+                               cutoff=cutoff, relaxed=True)
         i, share = key.hand, key.share
         if self._share_ruled_out(i, share):
             return _INFEASIBLE
@@ -255,7 +271,7 @@ class StepSearch:
         return self._by_order(restricted(self.spec, share, share),
                               self._mask([(i, j) for j in share] + held), [(i, share)],
                               hands=(i,), floor=floor, start=probe, exact=exact,
-                              cutoff=cutoff)
+                              cutoff=cutoff, relaxed=True)
 
     def _share_ruled_out(self, i: int, share: tuple[int, ...]) -> bool:
         """Whether c_i(share) is infeasible without a solve: a subset is (the cheaper test), or
@@ -402,12 +418,15 @@ class StepSearch:
         force = np.stack([parts[i].trajectory.force[:, i] for i in range(N_HANDS)], axis=1)
         grasp = np.stack([parts[i].trajectory.grasp[:, i] for i in range(N_HANDS)], axis=1)
         traj = replay(self._model, self._program.local_state, force, grasp)
+        apart = parts[0].apart | parts[1].apart
         if self._feasible(traj, self.spec):
             status = (Status.OPTIMAL if all(p.status is Status.OPTIMAL for p in parts)
                       else Status.FEASIBLE)
-            plan = StepResult.replayed(status, self.horizon, traj, float(np.abs(force).sum()))
+            plan = StepResult.replayed(status, self.horizon, traj, float(np.abs(force).sum()),
+                                        apart=apart)
         else:
-            plan = self._solve(self._node_spec(node), self._mask([]), grasp=grasp, exact=exact)
+            plan = self._solve(self._node_spec(node), self._mask([]), grasp=grasp, exact=exact,
+                               apart=apart)
             plan = plan if plan.status.has_solution else None
         if exact:
             self._composed[node] = plan
@@ -774,9 +793,11 @@ class StepSearch:
 def satisfies(scenario: Scenario, state: State, spec: Specification, model: Model,
               traj: Trajectory) -> bool:
     """Whether ``traj`` (over ``spec``'s objects, from ``state``) keeps the model's
-    constraints, ends at rest and satisfies ``spec`` (evaluated on its trace by ``evaluate.py``,
-    which shares no code with the encoder)."""
+    constraints (the objects' spacing, (C1)–(C2), included), ends at rest and satisfies ``spec``
+    (evaluated on its trace by ``evaluate.py``, which shares no code with the encoder)."""
     if violations(model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
+        return False
+    if crowding(model, traj, *standing(state, list(spec.objects), model.dt)):
         return False
     local = {j: n for n, j in enumerate(spec.objects)}
     goals = [Rect.of(scenario.task.goals[o.goal]) for o in scenario.task.objects]

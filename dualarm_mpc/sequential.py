@@ -351,9 +351,11 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
 
     alone = feasible([])
     if alone is Status.INFEASIBLE:
+        clearance = scenario.task.object_clearance
+        apart = "" if clearance is None else f", objects {clearance:g} m apart (C1)"
         return (f"{head}: the task alone is infeasible — the goals cannot be reached with "
-                f"|v| <= {scenario.robot.max_speed} and |u| <= {scenario.robot.max_force} from "
-                f"this state")
+                f"|v| <= {scenario.robot.max_speed} and |u| <= {scenario.robot.max_force}"
+                f"{apart} from this state")
     if not alone.has_solution:
         return f"{head}: the solver could not decide the task alone within its time limit"
     culprits = [name for name, f in spec.rules if not feasible([(name, f)]).has_solution]

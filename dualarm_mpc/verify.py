@@ -20,9 +20,11 @@ from dualarm_mpc.mld import (
     Model,
     Rect,
     State,
+    crowding,
     delivered,
     in_goal,
     replay,
+    standing,
     violations,
 )
 from dualarm_mpc.plan import Plan, Trajectory
@@ -70,6 +72,8 @@ def verify(scenario: Scenario, plan: Plan) -> Verification:
     for n, seg in enumerate(plan.segments):
         spec = specification(scenario, seg.objects, rules=rules)
         holds = atom_trace(scenario, replayed, start, start + seg.horizon)
+        problems += _crowding(scenario, model, replayed, seg.objects, start, start + seg.horizon,
+                              f"step {n + 1}")
         if not evaluate(spec.task(), holds, seg.horizon):
             problems.append(f"step {n + 1}: φ_task (13) is false on the replayed trace")
         for name, formula in spec.rules:
@@ -84,3 +88,19 @@ def verify(scenario: Scenario, plan: Plan) -> Verification:
         if not delivered(end.object_pos[j], end.object_vel[j], goals[o.goal], REST_TOL):
             problems.append(f"{o.name} does not end at rest in goal {o.goal}")
     return Verification(not problems, problems)
+
+
+def _crowding(scenario: Scenario, model: Model, traj: Trajectory, objects: list[int],
+              start: int, stop: int, step: str) -> list[str]:
+    """(C1)–(C2) on steps ``start..stop`` of ``traj``, the sequential step over ``objects``; the
+    others stand where they are at ``start``."""
+    part = Trajectory(traj.hand_pos[start:stop + 1], traj.hand_vel[start:stop + 1],
+                      traj.force[start:stop], traj.object_pos[start:stop + 1, objects],
+                      traj.object_vel[start:stop + 1, objects],
+                      traj.grasp[start:stop + 1][:, :, objects])
+    others = [j for j in range(scenario.n_objects) if j not in objects]
+    names = [scenario.task.objects[j].name for j in [*objects, *others]]
+    return [f"{step}: {names[j]} comes within {model.spacing:g} m of {names[o]} (C1) over its "
+            f"step {k}"
+            for j, o, k in crowding(model, part, *standing(State.at(traj, start), objects,
+                                                          model.dt))]

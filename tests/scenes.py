@@ -68,6 +68,24 @@ ONE_ON_THE_ROBOT = {
 }
 
 
+# §V-D's bounds; object a goes straight up to red, and b, delivered to the small blue goal,
+# stands in its way: the paper's plan carries a through b (a point), which keeps a box's
+# clearance from it with ``object_clearance`` (docs/formulation.md, (C1)-(C2)).
+IN_THE_WAY = {
+    **{k: ONE_ON_THE_ROBOT[k] for k in ("workspace", "max_speed", "max_force", "rule", "m_o",
+                                         "n_o", "delivery", "goal_margin")},
+    "name": "in_the_way",
+    "goals": {"red": [0.225, 0.575, 0.65, 0.95], "blue": [0.2, 0.4, 0.3, 0.5]},
+    "objects": [{"name": "a", "position": [0.3, 0.1], "goal": "red"},
+                {"name": "b", "position": [0.3, 0.4], "goal": "blue"}],
+}
+
+
+def in_the_way(**overrides) -> Scenario:
+    """:data:`IN_THE_WAY` with ``overrides``."""
+    return apply_overrides(Scenario(), {**IN_THE_WAY, **overrides})
+
+
 def yaml_text(data: dict, **overrides) -> str:
     """``data`` with top-level ``overrides`` as a scenario file's text."""
     return yaml.safe_dump({**data, **overrides}, sort_keys=False)

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-from scenes import ONE_ON_THE_ROBOT, yaml_text
+from scenes import ONE_ON_THE_ROBOT, in_the_way, yaml_text
 
 from dualarm_mpc.cli import main
 from dualarm_mpc.closed_loop import Summary, on_robot, simulate
@@ -238,6 +238,25 @@ def test_rule2_throws_an_object_onto_an_unreachable_goal_where_it_comes_to_rest(
     assert summary.min_arm_clearance_m >= MIN_ARM_CLEARANCE
 
 
+# --- objects that keep apart --------------------------------------------------------------------
+
+
+def test_a_plan_that_keeps_objects_apart_shoves_none_where_the_papers_plan_does() -> None:
+    """a is carried to its goal past b, which stands delivered in its way. The paper's plan
+    (points) drags a straight through b: the plant's contact results find the pair, b pushed
+    centimetres; with the robot's ``object_clearance`` (1 cm) the plan goes round b, no pair
+    touches, b stays where it was."""
+    shoved = simulate(in_the_way())
+    assert [c["objects"] for c in shoved.object_contacts] == [["a", "b"]]
+    assert np.abs(np.subtract(shoved.final_object_pos[1][:2], [0.3, 0.4])).max() > 0.01
+    kept = simulate(in_the_way(**{k: v for k, v in on_robot(in_the_way()).items()
+                                  if k == "object_clearance"}))
+    assert kept.object_contacts == []
+    assert_all_at_rest_in_goals(kept)
+    np.testing.assert_allclose(kept.final_object_pos[1][:2], [0.3, 0.4], atol=1e-3)
+    assert kept.max_hand_penetration_m <= MAX_HAND_PENETRATION
+
+
 # --- the paper's scenes on the robot -----------------------------------------------------------
 
 
@@ -251,7 +270,9 @@ def on_the_robot(name: str) -> Scenario:
 def test_the_paper_scenes_deliver_every_object_with_the_arms_apart(name: str) -> None:
     """§V-C (every object thrown) and §V-D (seed 0, rule 1): all ten objects rest in their
     goals, SceneGraph never finds the two arms closer than ``PAPER_ARM_CLEARANCE``, nor a hand
-    (tip, quill) deeper in an object than ``MAX_HAND_PENETRATION``: the hands hold from above."""
+    (tip, quill) deeper in an object than ``MAX_HAND_PENETRATION``: the hands hold from above;
+    and no two boxes touch while one moves: the plans keep them apart (without, 4 pairs on
+    §V-C)."""
     scenario = on_the_robot(name)
     summary = simulate(scenario)
     assert summary.mode == "lockstep"
@@ -259,6 +280,7 @@ def test_the_paper_scenes_deliver_every_object_with_the_arms_apart(name: str) ->
     assert_replans_recorded(summary, scenario)
     assert summary.min_arm_clearance_m >= PAPER_ARM_CLEARANCE
     assert summary.max_hand_penetration_m <= MAX_HAND_PENETRATION
+    assert summary.object_contacts == []
 
 
 # --- lockstep ----------------------------------------------------------------------------------

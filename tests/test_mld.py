@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dualarm_mpc.mld import Model, Rect, State, hand_reach, reachability, replay, violations
+from dualarm_mpc.mld import (
+    Model,
+    Rect,
+    State,
+    crowding,
+    hand_reach,
+    reachability,
+    replay,
+    standing,
+    violations,
+)
+from dualarm_mpc.plan import Trajectory
 
 PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -192,6 +205,82 @@ def test_violation_tolerance() -> None:
     m, s, force, grasp = _valid()
     force[1, 1] = [0.0, 0.1 + 1e-7]
     assert violations(m, replay(m, s, force, grasp)) == []
+
+
+# --- objects that keep apart: (C1)-(C2) --------------------------------------------------------
+
+SPACING = 0.06  # a 5 cm box and 1 cm of clearance
+
+
+def path(points, held) -> Trajectory:
+    """One object's positions (K+1, 2) and when hand 1 holds it (K+1,), velocities as the model
+    has them (v(k) = p(k+1) − p(k), Δt = 1); the hands and forces do not matter here."""
+    p = np.array(points, float)[:, None]
+    grasp = np.zeros((len(p), 2, 1), int)
+    grasp[:, 0, 0] = held
+    v = np.vstack([np.diff(p, axis=0), np.zeros((1, 1, 2))])
+    K = len(p) - 1
+    return Trajectory(np.zeros((K + 1, 2, 2)), np.zeros((K + 1, 2, 2)), np.zeros((K, 2, 2)), p, v,
+                      grasp)
+
+
+def boxes(*points) -> tuple[np.ndarray, np.ndarray]:
+    return np.array(points, float).reshape(-1, 2), np.array(points, float).reshape(-1, 2)
+
+
+def test_a_carry_through_a_standing_object_crowds_it_and_a_detour_does_not() -> None:
+    m = dataclasses.replace(model(), spacing=SPACING)
+    held = [0, 1, 1, 1, 0]
+    straight = path([(0.3, 0.1), (0.3, 0.1), (0.3, 0.3), (0.3, 0.5), (0.3, 0.5)], held)
+    assert crowding(m, straight, *boxes((0.3, 0.35))) == [(0, 1, 1), (0, 1, 2)]
+    # around it: aside below it first, then up along its left (x ≤ 0.3 − 0.06)
+    detour = path([(0.3, 0.1), (0.3, 0.1), (0.24, 0.1), (0.24, 0.3), (0.24, 0.5), (0.24, 0.5)],
+                  [0, 1, 1, 1, 1, 0])
+    assert crowding(m, detour, *boxes((0.3, 0.35))) == []
+    # both ends beyond a corner, the straight line between them through the square: crowded
+    corner = path([(0.2, 0.35), (0.2, 0.35), (0.3, 0.45), (0.3, 0.45)], [0, 1, 1, 0])
+    assert crowding(m, corner, *boxes((0.3, 0.35))) == [(0, 1, 1)]
+    # the points of the paper: no spacing, nothing to keep
+    assert crowding(model(), straight, *boxes((0.3, 0.35))) == []
+
+
+def test_crowding_holds_while_held_or_sliding_and_not_at_rest() -> None:
+    m = dataclasses.replace(model(), spacing=SPACING)
+    other = boxes((0.3, 0.35))
+    # released at step 2 (held at 1): the slide over [2, 3] ends beside the other: crowded
+    slide = path([(0.3, 0.1), (0.3, 0.1), (0.3, 0.2), (0.3, 0.3), (0.3, 0.3)], [0, 1, 0, 0, 0])
+    assert crowding(m, slide, *other) == [(0, 1, 2)]
+    # at rest next to it (never held after the first step's fixed segment): nothing to keep
+    still = path([(0.3, 0.3), (0.3, 0.3), (0.3, 0.3), (0.3, 0.3)], [0, 0, 0, 0])
+    assert crowding(m, still, *other) == []
+
+
+def test_a_pair_closer_already_may_not_come_closer() -> None:
+    m = dataclasses.replace(model(), spacing=SPACING)
+    other = boxes((0.3, 0.33))  # 3 cm from where the object is at k = 1
+    away = path([(0.3, 0.3), (0.3, 0.3), (0.3, 0.2), (0.3, 0.1)], [0, 1, 1, 0])
+    assert crowding(m, away, *other) == []
+    closer = path([(0.3, 0.3), (0.3, 0.3), (0.3, 0.31), (0.3, 0.31)], [0, 1, 1, 0])
+    assert crowding(m, closer, *other) == [(0, 1, 1), (0, 1, 2)]
+
+
+def test_two_objects_of_a_step_keep_apart_while_either_moves() -> None:
+    m = dataclasses.replace(model(n=2), spacing=SPACING)
+    # object 1 carried along y at x = 0.3 past object 2, which rests at (0.33, 0.3)
+    p = np.array([[(0.3, 0.1), (0.33, 0.3)], [(0.3, 0.1), (0.33, 0.3)], [(0.3, 0.3), (0.33, 0.3)],
+                  [(0.3, 0.5), (0.33, 0.3)], [(0.3, 0.5), (0.33, 0.3)]])
+    grasp = np.zeros((5, 2, 2), int)
+    grasp[1:4, 0, 0] = 1
+    v = np.vstack([np.diff(p, axis=0), np.zeros((1, 2, 2))])
+    traj = Trajectory(np.zeros((5, 2, 2)), np.zeros((5, 2, 2)), np.zeros((4, 2, 2)), p, v, grasp)
+    assert crowding(m, traj, np.zeros((0, 2)), np.zeros((0, 2))) == [(0, 1, 1), (0, 1, 2)]
+
+
+def test_a_sliding_object_outside_the_step_stands_for_its_whole_slide() -> None:
+    s = state(objects=[(0.1, 0.1), (0.3, 0.3), (0.5, 0.5)], object_vel=[(0, 0), (0.2, 0), (0, 0)])
+    lo, hi = standing(s, [0], dt=1.0)
+    np.testing.assert_allclose(lo, [[0.3, 0.3], [0.5, 0.5]])
+    np.testing.assert_allclose(hi, [[0.5, 0.3], [0.5, 0.5]])
 
 
 # --- reachability -----------------------------------------------------------------------------
