@@ -13,6 +13,7 @@ Run it (from the repository root)::
     .venv/bin/python bench/table2.py                                  # the whole grid, ~hours
     .venv/bin/python bench/table2.py --rows 2,5 2,6 --rules 1 --seeds 3 --time-limit 10
     .venv/bin/python bench/table2.py --rows 2,6 --seeds 0-2 --compare-forms
+    .venv/bin/python bench/table2.py --rows 2,5 2,6 2,10 --seeds 0-2 --apart 0.01
     .venv/bin/python bench/table2.py --workers 2                      # a local Dask cluster
     .venv/bin/python bench/table2.py --scheduler tcp://10.0.0.5:8786  # an existing one
 
@@ -25,6 +26,10 @@ One line per finished run goes to stderr, under a progress bar; the Markdown tab
 and next to the JSON (``--json``, default bench/results/table2.json, rewritten after every run,
 runs in grid order), which holds every run's record, the summary rows, the machine and the
 options.
+
+``--apart C`` runs every (row, rule, seed) twice, one right after the other: with the paper's
+objects (points) and with ``object_clearance`` C (docs/formulation.md, "Objects that keep apart"),
+and adds a table of what keeping them apart costs; Table II's rows are the points' runs.
 """
 
 from __future__ import annotations
@@ -99,6 +104,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="phi_task as sum(ev_j) >= m_o (counting) or eq. (13) literally (subsets)")
     p.add_argument("--compare-forms", action="store_true",
                    help="run both task forms and add a table comparing them")
+    p.add_argument("--apart", type=float, default=None, metavar="C",
+                   help="run each plan also with object_clearance C (m) and add a table "
+                        "comparing the two")
     p.add_argument("--run-budget", type=float, default=None, metavar="S",
                    help="stop a run after S s of wall time (its solves are interrupted); "
                         "default: no budget")
@@ -127,13 +135,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def grid(args: argparse.Namespace) -> list[dict]:
     forms = FORMS if args.compare_forms else (args.task_form,)
+    apart = (None, args.apart) if args.apart is not None else (None,)
     return [
         {"m_o": m, "n_o": n, "rule": rule, "seed": seed, "task_form": form,
          "time_limit_s": args.time_limit, "run_budget_s": args.run_budget,
          "search": args.search, "solver": args.solver, "compare": args.compare,
-         "horizons": args.horizons, "prover": args.prover,
+         "horizons": args.horizons, "prover": args.prover, "object_clearance": clearance,
          "shared_machine": args.workers > 1 or args.scheduler is not None}
         for (m, n) in args.rows for rule in args.rules for seed in args.seeds for form in forms
+        for clearance in apart
     ]
 
 
@@ -173,7 +183,8 @@ def run_one(task: dict) -> dict:
               "backend": task.get("solver", "highs")}
     if task["shared_machine"]:
         solver["workers"] = 1  # the runs share the cores already
-    overrides |= {"delivery": "reach", "solver": solver}
+    overrides |= {"delivery": "reach", "solver": solver,
+                  "object_clearance": task.get("object_clearance")}
     record = dict(task, status="error", message="", cost=None, solve_time_s=None,
                   cpu_time_s=None)
     segments, result, scenario = [], None, None
@@ -300,6 +311,8 @@ def monolithic_agreement(steps: list[dict]) -> dict:
 
 
 def summary_rows(records: list[dict]) -> list[dict]:
+    """Table II's rows: the runs with the paper's objects, points (``--apart`` adds others)."""
+    records = [r for r in records if r.get("object_clearance") is None]
     keys = {(r["m_o"], r["n_o"], r["rule"], FORMS.index(r["task_form"])) for r in records}
     return [summarize(records, (*key[:3], FORMS[key[3]])) for key in sorted(keys)]
 
@@ -373,6 +386,31 @@ def forms_table(records: list[dict]) -> str:
     return table(header, rows)
 
 
+def apart_table(records: list[dict]) -> str:
+    """``--apart``: each (row, rule, seed) with objects as points and kept apart, both runs
+    verified: mean plan time (wall, and CPU over the worker threads), cost, steps' horizons."""
+    by = {(r["m_o"], r["n_o"], r["rule"], r["seed"], r.get("object_clearance")): r
+          for r in records}
+    pairs: dict[tuple, list] = {}
+    for (m, n, rule, seed, clearance), r in by.items():
+        points = by.get((m, n, rule, seed, None))
+        if clearance is not None and points and r["status"] == points["status"] == "ok":
+            pairs.setdefault((m, n, rule, clearance), []).append((points, r))
+    header = ["(m_o,n_o)", "rule", "object clearance (m)", "paired runs",
+              "time, points / apart (s)", "apart / points", "CPU time, points / apart (s)",
+              "apart / points", "cost, points / apart", "horizons, points / apart"]
+    rows = []
+    for (m, n, rule, clearance), runs in sorted(pairs.items()):
+        mean = {key: [statistics.fmean(p[i][key] for p in runs) for i in (0, 1)]
+                for key in ("solve_time_s", "cpu_time_s", "cost")}
+        steps = [sum(s["horizon"] for p in runs for s in p[i]["steps"]) for i in (0, 1)]
+        (t0, t1), (c0, c1), (k0, k1) = (mean[k] for k in ("solve_time_s", "cpu_time_s", "cost"))
+        rows.append([f"({m},{n})", str(rule), f"{clearance:g}", str(len(runs)),
+                     f"{t0:.1f} / {t1:.1f}", f"{t1 / t0:.2f}", f"{c0:.1f} / {c1:.1f}",
+                     f"{c1 / c0:.2f}", f"{k0:.3f} / {k1:.3f}", f"{steps[0]} / {steps[1]}"])
+    return table(header, rows)
+
+
 def report(records: list[dict], args: argparse.Namespace) -> str:
     summary = summary_rows(records)
     forms = FORMS if args.compare_forms else (args.task_form,)
@@ -390,6 +428,10 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     if args.compare_forms:
         parts += ["Task forms (runs where both forms gave a verified plan):", "",
                   forms_table(records), ""]
+    if getattr(args, "apart", None) is not None:
+        parts += ["Objects kept apart (object_clearance, docs/formulation.md (C1)-(C2)) against "
+                  "points, each run right after its points' run (runs where both gave a "
+                  "verified plan):", "", apart_table(records), ""]
     return "\n".join(parts)
 
 
