@@ -486,10 +486,27 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"interrupted by {_signal_name()} at t = {summary.sim_time_s:.1f} s: the summary "
               "and replay end there", file=sys.stderr)
         return _stopped()
+    if meshcat is not None:
+        _serve_while_watched(meshcat)
     if not summary.all_delivered:
         print("error: not every object ends at rest inside its goal", file=sys.stderr)
         return FAILED
     return _failed_writes(OK, written)
+
+
+def _serve_while_watched(meshcat) -> None:
+    """The live page of a finished run goes on replaying it: keep its server up until the last
+    page closes (or a stop signal, which ends only this wait: the run is done and written)."""
+    from dualarm_mpc.recording import serve_while_watched
+
+    if meshcat.GetNumActiveConnections() == 0:
+        return
+    print(f"the run is over: {meshcat.web_url()} replays it until you close the page "
+          "(or press Ctrl-C)", flush=True)
+    try:
+        serve_while_watched(meshcat)
+    except KeyboardInterrupt:
+        _received.clear()
 
 
 def _stopped() -> int:

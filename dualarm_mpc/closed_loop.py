@@ -243,6 +243,8 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     dual.planner.close()
     if meshcat is not None:
         recording.save_recording(meshcat, html)
+    if live:
+        recording.end_live(meshcat, dual.station, t)
     return _summary(scenario, dual, context, t, wall, monitor.replans, events.applied,
                     interrupted)
 

@@ -3,10 +3,22 @@ server, and the headless recording saved as one self-contained HTML file (docs/d
 
 from __future__ import annotations
 
+import io
+import time
 from pathlib import Path
 
 import numpy as np
-from pydrake.geometry import Box, Meshcat, MeshcatParams, Rgba
+from matplotlib.figure import Figure
+from pydrake.common import MemoryFile
+from pydrake.geometry import (
+    Box,
+    InMemoryMesh,
+    Mesh,
+    Meshcat,
+    MeshcatAnimation,
+    MeshcatParams,
+    Rgba,
+)
 from pydrake.math import RigidTransform
 
 from dualarm_mpc import outputs
@@ -103,6 +115,61 @@ def save_recording(meshcat: Meshcat, path: str | Path | None) -> None:
     html = meshcat.StaticHtml()
     head, _, tail = html.rpartition("</body>")
     outputs.write(path, head + OPEN_CONTROLS + tail)
+
+
+# The sign a live page shows once the run is over: a strip lying on the table's far margin (the
+# 0.15 m the table extends past the goals), text on it, drawn after the recording so that the
+# replay the page plays does not hide it and the HTML replay does not have it.
+RUN_OVER = "/run_over"
+REPLAYS = 1_000_000  # times a live page plays the recording once the run is over: for good
+SIGN_SIZE = (1.1, 0.12)  # m: width, depth
+SIGN_OBJ = """mtllib sign.mtl
+v -0.5 -0.5 0
+v 0.5 -0.5 0
+v 0.5 0.5 0
+v -0.5 0.5 0
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+vn 0 0 1
+usemtl sign
+f 1/1/1 2/2/1 3/3/1
+f 1/1/1 3/3/1 4/4/1
+"""
+
+
+def end_live(meshcat: Meshcat, station: Station, t: float) -> None:
+    """A live page, the run over: it replays the recording over and over (published again,
+    after :func:`save_recording` wrote the HTML replay, which plays once) and says so, on a
+    sign on the table: "The run is over at t = … s: replaying it"."""
+    recording = meshcat.get_mutable_recording()
+    recording.set_loop_mode(MeshcatAnimation.LoopMode.kLoopRepeat)
+    recording.set_repetitions(REPLAYS)
+    meshcat.PublishRecording()
+    width, depth = SIGN_SIZE
+    fig = Figure(figsize=(8, 8 * depth / width), dpi=200)  # no pyplot: an image, no display
+    fig.text(0.5, 0.5, f"The run is over at t = {t:.1f} s: replaying it", ha="center",
+             va="center", fontsize=22, fontweight="bold", color=(0.15, 0.15, 0.15))
+    image = io.BytesIO()
+    fig.savefig(image, format="png", facecolor=(1.0, 1.0, 0.85))
+    files = {"sign.mtl": MemoryFile("newmtl sign\nKa 1 1 1\nKd 1 1 1\nmap_Kd sign.png\n",
+                                    ".mtl", "sign.mtl"),
+             "sign.png": MemoryFile(image.getvalue(), ".png", "sign.png")}
+    sign = InMemoryMesh(mesh_file=MemoryFile(SIGN_OBJ, ".obj", "sign.obj"),
+                        supporting_files=files)
+    meshcat.SetObject(RUN_OVER, Mesh(sign, np.array([width, depth, 1.0])))
+    x0, x1, _, y1 = station.table
+    meshcat.SetTransform(RUN_OVER, RigidTransform([(x0 + x1) / 2, y1 - 0.075, 0.003]))
+    meshcat.Flush()
+
+
+def serve_while_watched(meshcat: Meshcat, poll_s: float = 0.5) -> None:
+    """Keep the server up while a page is open on it: the page goes on playing the recording,
+    and its "No connection to server" banner would show the moment the server went. Returns
+    when the last page closes, at once if none is open."""
+    while meshcat.GetNumActiveConnections() > 0:
+        time.sleep(poll_s)
 
 
 def is_self_contained(html: str) -> bool:

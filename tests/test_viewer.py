@@ -12,6 +12,7 @@ import io
 import json
 import re
 import shutil
+import threading
 import time
 import urllib.request
 
@@ -183,6 +184,65 @@ def test_cli_meshcat_serves_the_run_live_and_still_writes_the_replay(
     no_proxy = urllib.request.build_opener(urllib.request.ProxyHandler({}))
     assert b"MeshCat" in no_proxy.open(url.group(1), timeout=10).read()
     assert recording.is_self_contained(html.read_text())
+
+
+RUN_OVER_JS = """
+const sign = viewer.scene_tree.find(['run_over']).object;
+const action = viewer.animator.actions[0];
+return {sign: sign.children.length > 0, duration: viewer.animator.duration,
+        playing: viewer.animator.playing, repeats: action ? action.repetitions : 0,
+        banner: getComputedStyle(document.getElementById('status-message')).display};
+"""
+
+
+def test_the_live_page_replays_the_run_when_it_ends_and_says_so(
+        chromium, scene_file, capsys, monkeypatch) -> None:
+    """``simulate --meshcat`` watched in Chromium: when the run ends the page replays it over
+    and over and a sign on the table says the run is over; the server stays up while the page
+    is open (no "No connection to server" banner), and the command returns once it closes."""
+    urls = []  # Meshcat is called from the thread that made it only: its URL for the browser
+
+    def start_meshcat(live: bool = False):  # the run starts once the page is open on it
+        meshcat = real_start(live)
+        urls.append(meshcat.web_url())
+        deadline = time.monotonic() + 120
+        while meshcat.GetNumActiveConnections() == 0 and time.monotonic() < deadline:
+            time.sleep(0.1)
+        return meshcat
+
+    real_start = recording.start_meshcat
+    monkeypatch.setattr(recording, "start_meshcat", start_meshcat)
+    seen: dict = {}
+
+    def watch() -> None:  # a person's browser, while the command runs on the main thread
+        try:
+            first = chromium.current_window_handle
+            WebDriverWait(chromium, 120).until(lambda _: urls)
+            chromium.switch_to.new_window("tab")
+            chromium.get(urls[0])
+            over = "return viewer.scene_tree.find(['run_over']).object.children.length > 0"
+            WebDriverWait(chromium, 600).until(lambda driver: driver.execute_script(over))
+            seen["at the end"] = chromium.execute_script(RUN_OVER_JS)
+            time.sleep(2)  # the command has written everything and waits for the page
+            seen["later"] = chromium.execute_script(RUN_OVER_JS)
+            chromium.close()  # the person closes the page: the command ends
+            chromium.switch_to.window(first)
+        except Exception as err:  # reported by the test, on its thread
+            seen["error"] = err
+
+    thread = threading.Thread(target=watch)
+    thread.start()
+    code = main(["simulate", str(scene_file), "--duration", str(RUN_S), "--meshcat"])
+    thread.join()
+    assert "error" not in seen, seen.get("error")
+    assert code == 4  # one object is not delivered in 3 s: this test is about the page
+    assert "the run is over" in capsys.readouterr().out
+    for when in ("at the end", "later"):
+        page = seen[when]
+        assert page["sign"] and page["playing"], (when, page)
+        assert page["duration"] == pytest.approx(RUN_S, abs=0.1)
+        assert page["repeats"] > 1  # over and over
+        assert page["banner"] == "none", (when, page)
 
 
 def test_record_contacts_adds_the_contact_forces_and_the_hidden_geometry(
