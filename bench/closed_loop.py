@@ -148,6 +148,7 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
     try:
         scenario = load_scenario(SCENARIO, overrides(rule, seed, args.time_limit, args.set))
         record["time_limit_s"] = scenario.solver.time_limit_s
+        record["object_clearance"] = scenario.task.object_clearance
         record["n_objects"] = scenario.n_objects
         record["objects"] = [{"name": o.name, "position": o.position, "goal": o.goal}
                              for o in scenario.task.objects]
@@ -299,8 +300,12 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     modes = sorted({r.get("mode", "realtime") for r in records})
     limit = (f"time limit {', '.join(f'{v:g}' for v in limits) or '—'} s per solve"
              if "realtime" in modes else "work limits, no time limit")
+    # the objects' spacing, recorded since it exists (simulate's default then: 1 cm)
+    apart = sorted({f"{c:g} m apart" if c is not None else "points" for c in
+                    (r["object_clearance"] for r in records if "object_clearance" in r)})
+    objects = f", objects {' and '.join(apart)}" if apart else ""
     head = (f"Closed loop, {SCENARIO}, (m_o, n_o) = ({M_O}, {N_O}), delivery rest, goal margin "
-            f"0.03 m{extra}, {' and '.join(modes) or '—'}, {limit}, "
+            f"0.03 m{objects}{extra}, {' and '.join(modes) or '—'}, {limit}, "
             f"Δt = 1 s. Wall per replan over replans with work (not done/stuck); per-rule rows "
             f"pool all replans of the rule, real-time factor = total sim time / total wall time.")
     return "\n".join([head, "", main_table(records, summary), "", "Detail:", "",
