@@ -33,7 +33,7 @@ from dualarm_mpc.scenario import Event, Scenario, ScenarioError
 # On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
 # object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
 # slots one object in ten was knocked short of its goal, beyond reach); and objects have extent:
-# one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C2); without,
+# one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C3); without,
 # the boxes of `make demo` touched in 4 pairs, a dragged one shoving another 8 cm). 1 cm is what
 # the slots leave between neighbours (2·goal_margin − object_size).
 ON_ROBOT = {"delivery": "rest", "goal_margin": 0.03, "goal_slots": True, "object_clearance": 0.01}

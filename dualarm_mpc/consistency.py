@@ -43,7 +43,7 @@ some horizon up to ``solver.max_horizon`` — it may drop constraints, never add
   Objects that conflict only together (a rule over two objects, two objects for one small goal)
   show here.
 
-The objects' spacing (``object_clearance``, (C1)–(C2)) is left out of every program: one object
+The objects' spacing (``object_clearance``, (C1)–(C3)) is left out of every program: one object
 with the others standing where they are now would not be a relaxation (a step may move them out
 of its way first).
 

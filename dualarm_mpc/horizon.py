@@ -161,6 +161,7 @@ class HorizonProgram:
         if apart and self.model.spacing is not None:
             self.apart = program.clearance(x, self.model, self.local_state, reach,
                                            *standing(state, self.objects, self.model.dt))
+            program.add_settling(self.prog, x, self.local_state)
         self._hand_cost = program.add_cost(self.prog, x, scenario.task.state_weight)
         self._forms: dict[Specification, StandardForm] = {}
 

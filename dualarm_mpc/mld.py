@@ -19,8 +19,9 @@ Model (Δt = ``dt``; arm i = 0 is arm 1, the right arm; objects j):
 * η_ij = 1 → hand i inside the box H_ij around object j (eqs. 10–11), one-sided;
 * (14) an object is held by at most one hand, (15) a hand holds at most one object,
   (16) ``x_arm2 + gap ≤ x_arm1``;
-* with ``object_clearance`` (docs/formulation.md, "Objects that keep apart", (C1)–(C2)), an
-  object held or sliding keeps its square clear of every other object's: :func:`crowding`.
+* with ``object_clearance`` (docs/formulation.md, "Objects that keep apart", (C1)–(C3)), an
+  object held or sliding keeps its square clear of every other object's (:func:`crowding`),
+  and none is held the step after its release (:func:`violations`).
 """
 
 from __future__ import annotations
@@ -363,7 +364,8 @@ def replay(model: Model, state: State, force: np.ndarray, grasp: np.ndarray) -> 
 
 
 def violations(model: Model, traj: Trajectory, tol: float = 1e-5) -> list[str]:
-    """Every way ``traj`` breaks the model's constraints (bounds, eqs. 10–11, 14–16)."""
+    """Every way ``traj`` breaks the model's constraints (bounds, eqs. 10–11, 14–16; with the
+    objects' spacing, (C3): no object held the step after its release)."""
     out = []
     g = traj.grasp
     if np.abs(traj.force).max(initial=0) > model.u_max + tol:
@@ -385,6 +387,12 @@ def violations(model: Model, traj: Trajectory, tol: float = 1e-5) -> list[str]:
         if d > model.grasp_half[j] + tol:
             out.append(f"eq. (10): hand {i + 1} grabs object {j + 1} at step {k + 1} "
                        f"from {d:.3f} m")
+    if model.spacing is not None:  # (C3): no object held the step after its release
+        held = g.any(axis=1)
+        slid = np.vstack([~held[0] & (np.abs(traj.object_vel[0]).max(axis=-1) > 0),
+                          held[:-1] & ~held[1:]])  # (K+1, N): sliding over [k, k+1]
+        for k, j in zip(*np.nonzero(slid[:-1] & held[1:]), strict=True):
+            out.append(f"(C3): object {j + 1} held at step {k + 1} while it slides")
     return out
 
 

@@ -194,6 +194,21 @@ def add_cost(prog, x: HorizonVariables, state_weight: float = 0.0) -> list[np.nd
     return shares
 
 
+def add_settling(prog, x: HorizonVariables, state: State) -> None:
+    """(C3), with the objects' spacing (docs/formulation.md): an object released at k is not
+    held again at k + 1 — held_j(k + 1) + held_j(k − 1) − held_j(k) ≤ 1, held_j = Σ_i η_ij —
+    and one sliding now (unheld, moving) is not held at 1. The model's slide ends at k + 1;
+    the robot's is a third short there (the table's drag), and a hand that takes it there
+    carries it that far off its plan, past the spacing (C1) keeps."""
+    rows = Rows()
+    held = [x.eta[:, i] for i in range(N_HANDS)]  # (T+1, N) each
+    rows.add([(1, h[2:]) for h in held] + [(1, h[:-2]) for h in held]
+             + [(-1, h[1:-1]) for h in held], ub=1)
+    rows.emit(prog, "settling (C3)")
+    sliding = ~state.grasp.any(axis=0) & (np.abs(state.object_vel).max(axis=1) > 0)
+    bound(prog, x.eta[1][:, sliding], 0.0, 0.0)
+
+
 @dataclass(frozen=True)
 class Clearance:
     """(C1)–(C2) of one horizon (docs/formulation.md, "Objects that keep apart"): the triples

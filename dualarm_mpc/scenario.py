@@ -312,7 +312,7 @@ class Task:
     goal_margin: float = field(default=0.0, metadata=_in(0.0, 1.0))
     goal_slots: bool = False  # aim each object at its own column of its goal (closed loop)
     # Objects have extent: one held or sliding keeps this gap (m) between its box
-    # (``object_size``) and every other's (docs/formulation.md, (C1)–(C2)); None: points, as in
+    # (``object_size``) and every other's (docs/formulation.md, (C1)–(C3)); None: points, as in
     # the paper (``simulate`` sets it, docs/scenarios.md, "The on-robot overrides")
     object_clearance: float | None = field(default=None, metadata=_in(0.0, 1.0))
 

@@ -793,7 +793,7 @@ class StepSearch:
 def satisfies(scenario: Scenario, state: State, spec: Specification, model: Model,
               traj: Trajectory) -> bool:
     """Whether ``traj`` (over ``spec``'s objects, from ``state``) keeps the model's
-    constraints (the objects' spacing, (C1)–(C2), included), ends at rest and satisfies ``spec``
+    constraints (the objects' spacing, (C1)–(C3), included), ends at rest and satisfies ``spec``
     (evaluated on its trace by ``evaluate.py``, which shares no code with the encoder)."""
     if violations(model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
         return False

@@ -276,6 +276,26 @@ def test_two_objects_of_a_step_keep_apart_while_either_moves() -> None:
     assert crowding(m, traj, np.zeros((0, 2)), np.zeros((0, 2))) == [(0, 1, 1), (0, 1, 2)]
 
 
+def test_an_object_is_not_held_the_step_after_its_release_while_objects_keep_apart() -> None:
+    """(C3): released at step 3, it slides over [3, 4]; held again at 4 it breaks (C3), at 5
+    it does not; and one sliding now is not held at step 1. Points (no spacing): no (C3)."""
+    m, s, force, grasp = _valid()
+    force, grasp = np.vstack([force, np.zeros((1, 2, 2))]), np.vstack([grasp, grasp[-1:]])
+    apart = dataclasses.replace(m, spacing=SPACING)
+    grasp[4, 0, 0] = 1  # held at 1-2, released at 3, held again at 4
+    traj = replay(apart, s, force, grasp)
+    assert [p for p in violations(apart, traj) if "(C3)" in p] == [
+        "(C3): object 1 held at step 4 while it slides"]
+    assert not [p for p in violations(m, traj) if "(C3)" in p]
+    grasp[4, 0, 0], grasp[5, 0, 0] = 0, 1
+    assert not [p for p in violations(apart, replay(apart, s, force, grasp)) if "(C3)" in p]
+    sliding = dataclasses.replace(s, object_vel=np.array([[0.1, 0.0], [0.0, 0.0]]))
+    once = no_grasp(1, 2)
+    once[1, 0, 0] = 1
+    assert violations(apart, replay(apart, sliding, np.zeros((1, 2, 2)), once))[-1] == \
+        "(C3): object 1 held at step 1 while it slides"
+
+
 def test_a_sliding_object_outside_the_step_stands_for_its_whole_slide() -> None:
     s = state(objects=[(0.1, 0.1), (0.3, 0.3), (0.5, 0.5)], object_vel=[(0, 0), (0.2, 0), (0, 0)])
     lo, hi = standing(s, [0], dt=1.0)
