@@ -301,7 +301,7 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     limit = (f"time limit {', '.join(f'{v:g}' for v in limits) or '—'} s per solve"
              if "realtime" in modes else "work limits, no time limit")
     # the objects' spacing, recorded since it exists (simulate's default then: 1 cm)
-    apart = sorted({f"{c:g} m apart" if c is not None else "points" for c in
+    apart = sorted({f"{c:g} m apart" if c is not None else "as points" for c in
                     (r["object_clearance"] for r in records if "object_clearance" in r)})
     objects = f", objects {' and '.join(apart)}" if apart else ""
     head = (f"Closed loop, {SCENARIO}, (m_o, n_o) = ({M_O}, {N_O}), delivery rest, goal margin "

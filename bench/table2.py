@@ -429,7 +429,7 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
         parts += ["Task forms (runs where both forms gave a verified plan):", "",
                   forms_table(records), ""]
     if getattr(args, "apart", None) is not None:
-        parts += ["Objects kept apart (object_clearance, docs/formulation.md (C1)-(C2)) against "
+        parts += ["Objects kept apart (object_clearance, docs/formulation.md (C1)-(C3)) against "
                   "points, each run right after its points' run (runs where both gave a "
                   "verified plan):", "", apart_table(records), ""]
     return "\n".join(parts)
