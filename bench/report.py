@@ -11,7 +11,9 @@ comments, the first naming what it shows::
 
 A file name renders that file as its bench's own report does (``--summarize``), the bench told
 by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, ``horizons``,
-``demo``); ``paper`` is Table II of the paper beside ours, pooled over every ``table2*.json``.
+``demo``); ``paper`` is Table II of the paper beside ours, pooled over every ``table2*.json``;
+``clearance`` is what ``object_clearance`` costs and saves, from ``table2-m2-apart.json`` and the
+two closed-loop records (``closed_loop.json``: objects apart, ``closed_loop-points.json``).
 Every table ends with the records it comes from: their date and the machine's speed.
 
 Run it (from the repository root)::
@@ -148,6 +150,54 @@ def render_paper(results: Path) -> str:
     return (table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n")
 
 
+# --- objects kept apart against points ---------------------------------------------------------
+
+CLEARANCE_RECORDS = ("table2-m2-apart.json", "closed_loop-points.json", "closed_loop.json")
+
+
+def render_clearance(results: Path) -> str:
+    """``object_clearance`` side by side with the paper's point objects: the plan time and cost
+    on Table II (2,·) (runs paired by seed, both verified) and, in the §V-D closed loop, the
+    object contacts, the replans left without a plan and the objects delivered."""
+    apart = load(results, CLEARANCE_RECORDS[0])
+    by = {(r["m_o"], r["n_o"], r["rule"], r["seed"], r.get("object_clearance")): r
+          for r in apart["runs"]}
+    clearance = apart["options"]["apart"]
+    pairs = {rule: [(r, by[key[:4] + (clearance,)]) for key, r in by.items()
+                    if key[2] == rule and key[4] is None and key[:4] + (clearance,) in by
+                    and r["status"] == by[key[:4] + (clearance,)]["status"] == "ok"]
+             for rule in sorted({r["rule"] for r in apart["runs"]})}
+    loops = []  # points, then apart: the closed loop with each
+    for name, expected in zip(CLEARANCE_RECORDS[1:], (None, clearance), strict=True):
+        runs = load(results, name)["runs"]
+        if {r.get("object_clearance") for r in runs} != {expected}:
+            raise RecordError(f"{name}: not every run has object_clearance {expected}, "
+                              f"the table's")
+        loops.append(runs)
+    rows = []
+    for rule, runs in pairs.items():
+        mean = [sum(p[i]["solve_time_s"] for p in runs) / len(runs) for i in (0, 1)]
+        cost = [sum(p[i]["cost"] for p in runs) / len(runs) for i in (0, 1)]
+        rows.append([f"Table II (2,·) rule {rule}: mean plan time ({len(runs)} plans)",
+                     f"{mean[0]:.1f} s", f"{mean[1]:.1f} s ({mean[1] / mean[0]:.1f}×)"])
+        rows.append([f"Table II (2,·) rule {rule}: mean cost", f"{cost[0]:.3f}",
+                     f"{cost[1]:.3f} (+{100 * (cost[1] / cost[0] - 1):.0f} %)"])
+    for label, count in (
+            ("pairs of objects that touched while one moved", lambda r: len(r["object_contacts"])),
+            ("replans that found no plan", lambda r: r["replans_without_plan"]),
+            ("objects at rest in their goals", lambda r: r["delivered"])):
+        cells = []
+        for runs in loops:
+            total = sum(count(r) for r in runs)
+            cells.append(f"{total}/{sum(r['n_objects'] for r in runs)}"
+                         if label.startswith("objects") else str(total))
+        n = len(loops[1])
+        rows.append([f"§V-D closed loop ({n} runs): {label}", *cells])
+    header = ["", "objects as points (the paper's)", f"objects {100 * clearance:g} cm apart"]
+    sources = [provenance(name, load(results, name), commit=False) for name in CLEARANCE_RECORDS]
+    return table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n"
+
+
 def seed_text(seeds: list[int]) -> str:
     """``0–9`` for a range, ``0, 3, 7`` otherwise."""
     if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
@@ -168,6 +218,7 @@ def regenerate(text: str, results: Path, relative: str) -> str:
     def block(match: re.Match) -> str:
         name = match.group(2)
         body = (render_paper(results) if name == "paper"
+                else render_clearance(results) if name == "clearance"
                 else render_file(results, name, commit=relative != ""))
         return match.group(1) + body.replace("](../", f"]({relative}") + match.group(4)
     return BLOCK.sub(block, text)
