@@ -21,6 +21,8 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
   the wall clock instead (a budget of 0.4 Δt per replan), and then the run depends on the machine;
 * **arms apart** — the least distance between the two arms' collision geometries over the run
   (the summary's ``min_arm_clearance_m``, by SceneGraph every 20 ms), in cm;
+* **hand into a box** — the deepest any hand geometry reached into any object over the run (the
+  summary's ``max_hand_penetration_m``, by SceneGraph every 20 ms), in mm;
 * **object contacts** — the pairs of objects that touched while one of them moved (the summary's
   ``object_contacts``, from the plant's contact results every 20 ms): a box shoved by another.
 
@@ -189,6 +191,7 @@ def summary_record(summary) -> dict:
         wall_time_s=summary.wall_clock["wall_time_s"],
         realtime_factor=summary.wall_clock["realtime_factor"],
         min_arm_clearance_m=summary.min_arm_clearance_m,
+        max_hand_penetration_m=summary.max_hand_penetration_m,
         object_contacts=summary.object_contacts,
         replans=len(summary.replans),
         solving_replans=len(solves),
@@ -242,6 +245,9 @@ def summarize(records: list[dict], rule: int) -> dict:
         "min_arm_clearance_m": min((r["min_arm_clearance_m"] for r in ok
                                     if r.get("min_arm_clearance_m") is not None), default=None),
         # runs recorded before the summary had them have none
+        "max_hand_penetration_m": (max(r["max_hand_penetration_m"] for r in ok)
+                                   if ok and all(r.get("max_hand_penetration_m") is not None
+                                                 for r in ok) else None),
         "object_contacts": (sum(len(r["object_contacts"]) for r in ok)
                             if all("object_contacts" in r for r in ok) else None),
     }
@@ -254,27 +260,33 @@ def walls(w: dict) -> str:
 def main_table(records: list[dict], summary: list[dict]) -> str:
     header = ["rule", "seed", "objects delivered (resting in goal) / 10", "sim time (s)",
               "replans", "wall per replan median / p95 / max (s)", "real-time factor",
-              "arms apart (cm)", "object contacts (pairs)"]
+              "arms apart (cm)", "hand into a box (mm)", "object contacts (pairs)"]
     rows = []
     for s in summary:
         for r in (r for r in records if r["rule"] == s["rule"]):
             if r["status"] != "ok":
-                rows.append([str(r["rule"]), str(r["seed"]), "error"] + ["—"] * 6)
+                rows.append([str(r["rule"]), str(r["seed"]), "error"] + ["—"] * 7)
                 continue
             contacts = r.get("object_contacts")
             rows.append([str(r["rule"]), str(r["seed"]), f"{r['delivered']}/{r['n_objects']}",
                          f"{r['sim_time_s']:.0f}", str(r["replans"]), walls(r["replan_wall_s"]),
                          f"{r['realtime_factor']:.2f}", centimetres(r.get("min_arm_clearance_m")),
+                         millimetres(r.get("max_hand_penetration_m")),
                          fmt(None if contacts is None else len(contacts), "d")])
         rows.append([f"**{s['rule']}**", f"**all ({s['ok']}/{s['runs']} runs)**",
                      f"**{s['delivered']}/{s['objects']}**", fmt(s["mean_sim_time_s"], ".0f"),
                      str(s["replans"]), walls(s["replan_wall_s"]), fmt(s["realtime_factor"]),
-                     centimetres(s["min_arm_clearance_m"]), fmt(s.get("object_contacts"), "d")])
+                     centimetres(s["min_arm_clearance_m"]),
+                     millimetres(s["max_hand_penetration_m"]), fmt(s.get("object_contacts"), "d")])
     return table(header, rows)
 
 
 def centimetres(metres: float | None) -> str:
     return fmt(None if metres is None else 100 * metres, ".1f")
+
+
+def millimetres(metres: float | None) -> str:
+    return fmt(None if metres is None else 1000 * metres, ".1f")
 
 
 def detail_table(records: list[dict]) -> str:
