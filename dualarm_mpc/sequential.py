@@ -224,10 +224,13 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
             slice_s *= 4
     proofs = prover.proofs()
     undecided = [t for t in undecided if t not in proofs]
-    if first is not None and first.cost < found.cost:
+    if first is not None and first.cost <= found.cost:
         best = first
-    else:  # not proven optimal at T₁: the witness's bound holds for the restriction only
-        best = dataclasses.replace(found, status=Status.FEASIBLE, bound=0.0, gap=1.0)
+    else:  # the witness's own bound holds for the restriction only; at T₁ the search's does
+        bound = first.bound if first is not None and first.horizon == found.horizon else 0.0
+        gap = max(0.0, (found.cost - bound) / max(abs(found.cost), 1e-12))
+        best = dataclasses.replace(found, bound=bound, gap=gap, status=(
+            Status.OPTIMAL if gap <= options.mip_rel_gap + 1e-9 else Status.FEASIBLE))
     minimal = ((first is None or first.horizon == best.horizon)
                and not [t for t in undecided if t < best.horizon])
     return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,

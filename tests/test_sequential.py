@@ -137,6 +137,8 @@ def test_witness_policy_is_never_worse_than_its_witness() -> None:
     res, _ = sequential.plan_step(scenario, state, spec)
     assert res.witness_cost == pytest.approx(found.cost) and res.witness_horizon == found.horizon
     assert res.cost <= found.cost + 1e-9 and res.horizon <= found.horizon
+    # what the step claims proven holds for the monolithic MILP at its horizon
+    assert res.bound <= solve_step(scenario, state, spec, res.horizon).cost + 1e-6
     exact = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
                                                                       horizons="exact"))
     plain, _ = sequential.plan_step(exact, state, spec)
