@@ -47,7 +47,7 @@ from table2 import SCENARIO, parse_row
 from dualarm_mpc.horizon import solve_options
 from dualarm_mpc.mld import State, delivered_objects
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import plan, predict_horizon, select_objects
+from dualarm_mpc.sequential import predict_horizon, select_objects, transport
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.spec import specification
 
@@ -100,7 +100,7 @@ def step_start(args: argparse.Namespace) -> tuple[State, list[dict]]:
         if len(planned) >= args.step - 1:
             stop.set()  # the next step stops before its first solve
 
-    result = plan(scenario, options, progress=progress)
+    result = transport(scenario, options, progress=progress)
     if len(result.segments) < args.step - 1:
         raise SystemExit(f"the plan has {len(result.segments)} steps, none numbered {args.step}")
     return State.last(result.trajectory), [s.to_json() for s in result.segments]

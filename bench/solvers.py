@@ -38,7 +38,7 @@ from table2 import SCENARIO, parse_row, step_starts
 from dualarm_mpc.horizon import HorizonProgram, solve_step
 from dualarm_mpc.scenario import load_scenario
 from dualarm_mpc.search import search_step
-from dualarm_mpc.sequential import plan
+from dualarm_mpc.sequential import transport
 from dualarm_mpc.solver import SolverUnavailable, installed_backends
 from dualarm_mpc.spec import specification
 
@@ -80,7 +80,7 @@ def run_model(m_o: int, n_o: int, rule: int, seed: int, args: argparse.Namespace
     overrides = {"m_o": m_o, "n_o": n_o, "rule": rule, "seed": seed, "delivery": "reach",
                  "solver": {"time_limit_s": args.time_limit}}
     scenario = load_scenario(SCENARIO, overrides)
-    reference = plan(scenario)
+    reference = transport(scenario)
     out = []
     for n, (seg, state) in enumerate(step_starts(reference), 1):
         spec = specification(scenario, seg.objects)

@@ -2,7 +2,7 @@
 
 What it measures: for each (m_o, n_o) row, rule and seed, the scenario ``table1_vd`` (ten objects
 uniform in [-0.25, 0.25]² from the seed, reachable goals, delivery ``reach`` as in the paper) is
-planned with :func:`dualarm_mpc.sequential.plan` and every plan is checked with
+planned with :func:`dualarm_mpc.sequential.transport` and every plan is checked with
 :func:`dualarm_mpc.verify.verify`. "Time" is the plan's total solve time: build and solve of every
 horizon tried in every sequential step (the paper's "calculation time"). Means are over the runs
 that produced a verified plan; planning errors, verification failures and runs stopped by
@@ -63,7 +63,7 @@ from benchlib import (
 from dualarm_mpc.horizon import solve_options, solve_step
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario, ortools_installed
-from dualarm_mpc.sequential import PlanningError, plan, predict_horizon
+from dualarm_mpc.sequential import PlanningError, predict_horizon, transport
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.spec import specification
 from dualarm_mpc.verify import verify
@@ -197,7 +197,7 @@ def run_one(task: dict) -> dict:
         scenario = load_scenario(SCENARIO, overrides)
         if budget:
             budget.start()
-        result = plan(scenario, replace(solve_options(scenario), interrupt=stop),
+        result = transport(scenario, replace(solve_options(scenario), interrupt=stop),
                       progress=segments.append)
         if stop.is_set():  # a partial plan: its steps are in ``segments``
             result = None

@@ -313,7 +313,7 @@ def _failed_writes(code: int, written: bool) -> int:
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from dualarm_mpc.horizon import HorizonProgram, solve_options
-    from dualarm_mpc.sequential import PlanningError, plan
+    from dualarm_mpc.sequential import PlanningError, transport
     from dualarm_mpc.solver import Interrupt
     from dualarm_mpc.verify import verify
 
@@ -374,7 +374,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     stop = Interrupt()
     options = dataclasses.replace(solve_options(scenario), interrupt=stop)
     try:
-        result = _interruptible(lambda: plan(scenario, options, progress, tried), stop,
+        result = _interruptible(lambda: transport(scenario, options, progress, tried), stop,
                                 heartbeat)
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -382,9 +382,9 @@ def embed_step(scenario: Scenario, state: State, objects: list[int],
     return Trajectory(local.hand_pos, local.hand_vel, local.force, op, ov, g)
 
 
-def plan(scenario: Scenario, options: SolveOptions | None = None,
-         progress: Callable[[Segment], None] | None = None,
-         on_try: Callable[[HorizonTried], None] | None = None) -> Plan:
+def transport(scenario: Scenario, options: SolveOptions | None = None,
+              progress: Callable[[Segment], None] | None = None,
+              on_try: Callable[[HorizonTried], None] | None = None) -> Plan:
     """Algorithm 1 (sequential transportation): plan m_o objects at a time until every object
     rests in its goal. ``progress`` hears of each step, ``on_try`` of each horizon tried.
     Raises :class:`PlanningError` with the reason when a step has no plan; when

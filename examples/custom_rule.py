@@ -14,7 +14,7 @@ import sys
 from dualarm_mpc.consistency import check
 from dualarm_mpc.plot import plot_plan
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import plan
+from dualarm_mpc.sequential import transport
 from dualarm_mpc.verify import verify
 
 
@@ -30,7 +30,7 @@ def main(out: str = "custom_rule.png") -> None:
     report = check(scenario)
     if not report.consistent:
         sys.exit("\n".join(str(c) for c in report.conflicts))
-    result = plan(scenario)
+    result = transport(scenario)
     verdict = verify(scenario, result)
     assert verdict.ok, verdict.problems
     for n, seg in enumerate(result.segments, 1):

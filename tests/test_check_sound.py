@@ -19,7 +19,7 @@ from dualarm_mpc.horizon import solve_options, solve_step
 from dualarm_mpc.ltl import Atom, Formula, nnf, rename_atoms
 from dualarm_mpc.mld import State
 from dualarm_mpc.scenario import Scenario, apply_overrides
-from dualarm_mpc.sequential import plan
+from dualarm_mpc.sequential import transport
 from dualarm_mpc.solver import Status
 from dualarm_mpc.spec import negated_atoms, specification
 from dualarm_mpc.verify import verify
@@ -124,7 +124,7 @@ def test_a_rule_about_another_object_is_no_conflict(rule: str) -> None:
     scenario = two_objects(rules=[rule], solver={"time_limit_s": 10, "max_horizon": 15})
     report = check(scenario)
     assert report.consistent and not report.undecided, report.conflicts
-    p = plan(scenario)
+    p = transport(scenario)
     verdict = verify(scenario, p)
     assert verdict.ok, verdict.problems
 
@@ -138,7 +138,7 @@ def test_an_object_a_later_step_delivers_is_checked_from_anywhere() -> None:
                      workspace=[-0.5, 0.6, -0.3, 0.8])
     report = check(scenario)
     assert report.consistent and not report.undecided, report.conflicts
-    p = plan(scenario)
+    p = transport(scenario)
     assert len(p.segments) == 2
     verdict = verify(scenario, p)
     assert verdict.ok, verdict.problems

@@ -195,10 +195,10 @@ def test_infeasible_task_exits_nonzero_with_the_reason(tmp_path, capsys) -> None
 def _never_plan(monkeypatch) -> None:
     import dualarm_mpc.sequential
 
-    def plan(*args, **kwargs):
+    def transport(*args, **kwargs):
         raise AssertionError("planned although the input was bad")
 
-    monkeypatch.setattr(dualarm_mpc.sequential, "plan", plan)
+    monkeypatch.setattr(dualarm_mpc.sequential, "transport", transport)
 
 
 @pytest.mark.parametrize(

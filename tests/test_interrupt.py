@@ -11,7 +11,7 @@ import time
 from dualarm_mpc.horizon import solve_options
 from dualarm_mpc.plan import Plan
 from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import plan
+from dualarm_mpc.sequential import transport
 from dualarm_mpc.solver import Interrupt
 from dualarm_mpc.verify import verify
 
@@ -20,7 +20,7 @@ def test_a_stop_after_the_first_step_returns_it_as_a_partial_plan() -> None:
     scenario = load_scenario("table1_vd", {"rule": 2, "seed": 1})
     stop = Interrupt()
     options = dataclasses.replace(solve_options(scenario), interrupt=stop)
-    result = plan(scenario, options, progress=lambda seg: stop.set())
+    result = transport(scenario, options, progress=lambda seg: stop.set())
     assert result.partial and len(result.segments) == 1
     assert result.trajectory.steps == result.segments[0].horizon
     assert verify(scenario, result).ok  # each step completed satisfies its specification
@@ -31,7 +31,7 @@ def test_a_stop_before_the_first_step_returns_the_initial_state() -> None:
     scenario = load_scenario("table1_vd", {"rule": 2, "seed": 1})
     stop = Interrupt()
     stop.set()
-    result = plan(scenario, dataclasses.replace(solve_options(scenario), interrupt=stop))
+    result = transport(scenario, dataclasses.replace(solve_options(scenario), interrupt=stop))
     assert result.partial and not result.segments and result.trajectory.steps == 0
 
 
@@ -42,8 +42,8 @@ def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monk
     from dualarm_mpc import sequential
 
     def slow_first_step(scenario, options, progress, tried):  # a step longer than a 0.1 s tick
-        return plan(scenario, options, lambda seg: (time.sleep(0.5), progress(seg)), tried)
+        return transport(scenario, options, lambda seg: (time.sleep(0.5), progress(seg)), tried)
 
-    monkeypatch.setattr(sequential, "plan", slow_first_step)
+    monkeypatch.setattr(sequential, "transport", slow_first_step)
     assert cli.main(["plan", "table1_vd", "--seed", "1", "--set", "random_objects.count: 4"]) == 0
     assert "still searching step 1:" in capsys.readouterr().out

@@ -14,7 +14,7 @@ from dualarm_mpc.horizon import solve_step
 from dualarm_mpc.mld import Rect, State
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.sequential import PlanningError, plan
+from dualarm_mpc.sequential import PlanningError, transport
 from dualarm_mpc.spec import specification
 from dualarm_mpc.verify import verify
 
@@ -45,7 +45,7 @@ def in_goal(scenario: Scenario, t: Trajectory, j: int) -> np.ndarray:
 def two_object_plan(request):
     rule, delivery = request.param
     scenario = two_objects(rule=rule, delivery=delivery)
-    return scenario, plan(scenario)
+    return scenario, transport(scenario)
 
 
 def test_two_object_plan_is_verified_and_delivers(two_object_plan) -> None:
@@ -107,7 +107,7 @@ def test_objects_already_in_their_goal_need_no_step() -> None:
         ],
         m_o=1,
     )
-    p = plan(scenario)
+    p = transport(scenario)
     assert verify(scenario, p).ok
     assert p.delivered_step[0] == 0
     assert all(s.objects == [1] for s in p.segments)
@@ -175,7 +175,7 @@ def test_select_objects_prefers_the_cheapest() -> None:
 @pytest.fixture(scope="module")
 def rule2_plan():
     scenario = two_objects(rule=2, delivery="rest")
-    p = plan(scenario)
+    p = transport(scenario)
     assert verify(scenario, p).ok
     return scenario, p
 
@@ -245,7 +245,7 @@ def test_verify_checks_the_plans_rule() -> None:
             "solver": {"max_horizon": 10},
         },
     )
-    p = plan(scenario)
+    p = transport(scenario)
     assert verify(scenario, p).ok
     check = verify(scenario, dataclasses.replace(p, rule=1))
     assert not check.ok and any("no-throw" in m for m in check.problems), check.problems
@@ -256,7 +256,7 @@ def test_verify_checks_that_objects_keep_apart() -> None:
     plan goes round b, and verify (``mld.crowding`` on the replayed trace) tells the two apart,
     naming the objects and the step."""
     points, boxes = in_the_way(), in_the_way(object_clearance=0.01)
-    straight, round_b = plan(points), plan(boxes)
+    straight, round_b = transport(points), transport(boxes)
     assert verify(points, straight).ok and verify(boxes, round_b).ok
     assert round_b.segments[0].horizon == straight.segments[0].horizon
     check = verify(boxes, straight)
@@ -284,7 +284,7 @@ def test_unreachable_goals_with_rule_1_name_the_no_throw_rule(n: int) -> None:
         },
     )
     with pytest.raises(PlanningError, match=r"no-throw") as info:
-        plan(scenario)
+        transport(scenario)
     assert "object1" in str(info.value) and "horizon 8" in str(info.value)
 
 
@@ -301,7 +301,7 @@ def test_too_slow_hands_name_the_task_alone() -> None:
         },
     )
     with pytest.raises(PlanningError, match="task alone is infeasible"):
-        plan(scenario)
+        transport(scenario)
 
 
 def test_user_rules_conflicting_with_the_task_are_named() -> None:
@@ -313,15 +313,15 @@ def test_user_rules_conflicting_with_the_task_are_named() -> None:
         "solver": {"max_horizon": 8},
     }
     scenario = two_objects(**one)
-    assert verify(scenario, plan(two_objects(**one, rules=["G !eta[1,1]"]))).ok
+    assert verify(scenario, transport(two_objects(**one, rules=["G !eta[1,1]"]))).ok
     scenario = two_objects(**one, rules=["G !eta[1,1]", "G !eta[2,1]"])
     with pytest.raises(PlanningError, match=r"together conflict") as info:
-        plan(scenario)
+        transport(scenario)
     assert "rules[0] G !eta[1,1]" in str(info.value)
     assert "rules[1] G !eta[2,1]" in str(info.value)
     scenario = two_objects(**one, rules=["G !eta[1,1] & G !eta[2,1]"])
     with pytest.raises(PlanningError, match=r"conflicts with rule\(s\) rules\[0\]"):
-        plan(scenario)
+        transport(scenario)
 
 
 # --- §V-C in full --------------------------------------------------------------------------------
@@ -330,7 +330,7 @@ def test_user_rules_conflicting_with_the_task_are_named() -> None:
 @pytest.fixture(scope="module")
 def section_vc_plan():
     scenario = load_scenario("table1_vc", {"rule": 2})
-    return scenario, plan(scenario)
+    return scenario, transport(scenario)
 
 
 @pytest.mark.slow  # plans all of §V-C
