@@ -158,7 +158,8 @@ CLEARANCE_RECORDS = ("table2-m2-apart.json", "closed_loop-points.json", "closed_
 def render_clearance(results: Path) -> str:
     """``object_clearance`` side by side with the paper's point objects: the plan time and cost
     on Table II (2,·) (runs paired by seed, both verified) and, in the §V-D closed loop, the
-    object contacts, the replans left without a plan and the objects delivered."""
+    object contacts, the replans left without a plan, the objects delivered and the deepest
+    any hand went into a box."""
     apart = load(results, CLEARANCE_RECORDS[0])
     by = {(r["m_o"], r["n_o"], r["rule"], r["seed"], r.get("object_clearance")): r
           for r in apart["runs"]}
@@ -191,8 +192,11 @@ def render_clearance(results: Path) -> str:
             total = sum(count(r) for r in runs)
             cells.append(f"{total}/{sum(r['n_objects'] for r in runs)}"
                          if label.startswith("objects") else str(total))
-        n = len(loops[1])
-        rows.append([f"§V-D closed loop ({n} runs): {label}", *cells])
+        rows.append([f"§V-D closed loop ({len(loops[1])} runs): {label}", *cells])
+    deepest = [max((r.get("max_hand_penetration_m") for r in runs),  # older runs have none
+                   key=lambda d: float("inf") if d is None else d) for runs in loops]
+    rows.append([f"§V-D closed loop ({len(loops[1])} runs): deepest hand into a box",
+                 *("not recorded" if d is None else f"{1000 * d:.1f} mm" for d in deepest)])
     header = ["", "objects as points (the paper's)", f"objects {100 * clearance:g} cm apart"]
     sources = [provenance(name, load(results, name), commit=False) for name in CLEARANCE_RECORDS]
     return table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n"
