@@ -18,17 +18,13 @@ import numpy as np
 from dualarm_mpc.horizon import HorizonProgram, StepResult, solve_options, solve_step
 from dualarm_mpc.mld import Model, Rect, State, delivered_objects, in_goal, reachability
 from dualarm_mpc.plan import Plan, Segment, Trajectory
+from dualarm_mpc.relaxations import Key
 from dualarm_mpc.route import horizon_bound
 from dualarm_mpc.scenario import Scenario
-from dualarm_mpc.search import (
-    Key,
-    horizon_has_plan,
-    horizon_ruled_out,
-    satisfies,
-    search_step,
-)
+from dualarm_mpc.search import horizon_has_plan, horizon_ruled_out, search_step
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import Specification, rule_formulas, specification, with_no_throw
+from dualarm_mpc.subprograms import satisfies
 
 # Seconds a step may go without a plan before the largest horizon is checked (plan_step): the
 # check costs up to CAP_CHECK_TIME_S, wasted when the step has a plan, so only a step that has
@@ -148,7 +144,7 @@ def witness(scenario: Scenario, state: State, spec: Specification,
     """The step's witness: the plan of ``spec`` with no-throw (18) for every object
     (:func:`spec.with_no_throw`, a restriction: quick where ``spec`` allows relays), at its own
     first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by the evaluator
-    (:func:`search.satisfies`); None where ``spec`` has no-throw already, or the restriction
+    (:func:`subprograms.satisfies`); None where ``spec`` has no-throw already, or the restriction
     has no plan or none in time."""
     restricted = with_no_throw(spec)
     if restricted is None:
@@ -169,7 +165,7 @@ def witness(scenario: Scenario, state: State, spec: Specification,
     if not satisfies(scenario, state, spec, model, res.trajectory):
         return None
     # Its solver values are those of the restriction's program (other LTL columns): a MIP start
-    # from its forces and grasps instead (search._start).
+    # from its forces and grasps instead (subprograms._start).
     return dataclasses.replace(res, solution=None, variables=None)
 
 

@@ -31,8 +31,9 @@ from dualarm_mpc.mld import (
     standing,
     violations,
 )
+from dualarm_mpc.relaxations import AloneKey, HandKey, Request, solve_relaxation
 from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.search import BOTH, HandKey, StepSearch, search_step
+from dualarm_mpc.search import StepSearch, search_step
 from dualarm_mpc.solver import SolveOptions, Status
 from dualarm_mpc.spec import (
     RULE_TEXT,
@@ -42,6 +43,7 @@ from dualarm_mpc.spec import (
     survives_idling,
     untouchable,
 )
+from dualarm_mpc.subprograms import BOTH, StepPrograms
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
 
@@ -216,9 +218,8 @@ def test_the_nodes_cover_every_labelling_with_one_widest_hand_over_node_per_deli
     s = random_scene(2)
     s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=2))
     spec = specification(s, [0, 1, 2])
-    search = StepSearch(s, State.initial(s), spec, 10, SolveOptions(time_limit_s=5),
-                        handover="always")
-    nodes = search.nodes()
+    programs = StepPrograms(s, State.initial(s), spec, 10, SolveOptions(time_limit_s=5))
+    nodes = StepSearch.of(programs, handover="always").skeleton.nodes(relays=False)
     for targets in itertools.combinations(spec.objects, 2):
         mine = [n.hands for n in nodes if n.targets == targets]
         assert mine.count((BOTH, BOTH)) == 1 and len(mine) == 2 ** 2 + 1
@@ -254,21 +255,21 @@ def test_the_default_search_finds_the_horizon_only_a_relay_makes_feasible() -> N
     assert search_step(s, state, spec, 10).status is Status.INFEASIBLE
 
 
-class OneHandSharesRunOut(StepSearch):
-    """Every one-hand share "runs out of time": no node with one hand per object is decided."""
-
-    def _compute(self, key, exact, cutoff=np.inf):
-        res = super()._compute(key, exact, cutoff)
-        if isinstance(key, HandKey) and key.share:
-            return dataclasses.replace(res, status=Status.TIME_LIMIT, trajectory=None)
-        return res
+def one_hand_shares_run_out(programs: StepPrograms, request: Request):
+    """The real relaxation solver, but every one-hand share it solves "runs out of time": no
+    node with one hand per object is decided."""
+    res = solve_relaxation(programs, request)
+    if isinstance(request.key, HandKey) and request.key.share:
+        return dataclasses.replace(res, status=Status.TIME_LIMIT, trajectory=None)
+    return res
 
 
 def test_relays_are_probed_when_the_nodes_without_them_are_left_undecided() -> None:
     s, state, spec = relay_step()
-    search = OneHandSharesRunOut(s, state, spec, 11, SolveOptions(time_limit_s=60))
-    assert search.feasible() and not search.stats.timed_out
-    assert held_by_both(search._witness)
+    programs = StepPrograms(s, state, spec, 11, SolveOptions(time_limit_s=60))
+    found = StepSearch.of(programs, solver=one_hand_shares_run_out).feasible()
+    assert found.status is Status.FEASIBLE and found.relays
+    assert held_by_both(found.witness)
 
 
 @pytest.mark.parametrize("seed", [0, 3])
@@ -295,17 +296,38 @@ def test_plans_carried_up_a_horizon_change_nothing(seed: int) -> None:
     assert any(r.solution is None and r.solve_time_s == 0.0 for r in below.values())
 
 
-def test_search_statistics_count_the_work_done() -> None:
+def test_each_relaxation_is_solved_once_and_kept() -> None:
+    """The store's solver, counted around the real one: no relaxation is solved twice the same
+    way unless its first answer ran out of time, none is probed after its exact solve, and a
+    second optimisation of the same horizon takes every bound from the store (no solve)."""
     s = random_scene(1)
     spec = specification(s, [0, 1, 2])
     mono = first_feasible(s, spec)
-    search = StepSearch(s, State.initial(s), spec, mono.horizon,
-                        SolveOptions(time_limit_s=30, mip_rel_gap=1e-7))
-    assert search.feasible()
-    res = search.run()
+    answers: list[tuple[Request, Status]] = []
+
+    def counted(programs: StepPrograms, request: Request):
+        res = solve_relaxation(programs, request)
+        answers.append((request, res.status))
+        return res
+
+    programs = StepPrograms(s, State.initial(s), spec, mono.horizon,
+                            SolveOptions(time_limit_s=30, mip_rel_gap=1e-7))
+    search = StepSearch.of(programs, solver=counted)
+    found = search.feasible()
+    assert found.status is Status.FEASIBLE
+    res = search.run(found)
     assert res.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
-    assert search.stats.relaxations > 0
-    assert search.stats.cpu_time_s > 0
+    assert 0 < len(answers) <= search.store.solved  # some decided without a solve
+    for n, (request, status) in enumerate(answers):
+        later = [r for r, _ in answers[n + 1:] if r.key == request.key]
+        if status is not Status.TIME_LIMIT:
+            assert all(r.exact != request.exact for r in later), request.key
+        if request.exact:
+            assert all(r.exact for r in later), request.key
+    solves = len(answers)
+    again = search.run(found)
+    assert len(answers) == solves
+    assert again.cost == pytest.approx(res.cost, rel=1e-9)
 
 
 @pytest.mark.parametrize("rule", [1, 2])
@@ -346,63 +368,81 @@ def test_the_plan_does_not_depend_on_the_number_of_workers() -> None:
 # --- the feasibility pass in rounds ---------------------------------------------------------------
 
 
-class SlowFirstNode(StepSearch):
-    """The first node's relaxations "run out of time" while a program may take less than
-    ``needs`` seconds (no clock: the slice the pass gives decides), and record each slice."""
+class RunsOut:
+    """The real relaxation solver, but the relaxations in ``slow`` (every one while it is None)
+    "run out of time" while a program may take less than ``needs`` seconds (no clock: the slice
+    the pass gives decides); records the slice of every solve."""
 
-    needs = np.inf
+    def __init__(self, needs: float = np.inf) -> None:
+        self.needs = needs
+        self.slow: set | None = None
+        self.asked: list[tuple[object, float]] = []
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        first = self.nodes(handed_over=False)[0]
-        self.slow = {HandKey(i, first.share(i)) for i in (0, 1)}
-        self.slices: list[float] = []
+    def __call__(self, programs: StepPrograms, request: Request):
+        res = solve_relaxation(programs, request)
+        self.asked.append((request.key, request.slice_s))
+        if self.slowed(request.key) and request.slice_s < self.needs:
+            return dataclasses.replace(res, status=Status.TIME_LIMIT, trajectory=None)
+        return res
 
-    def _compute(self, key, exact, cutoff=np.inf):
-        if key in self.slow:
-            self.slices.append(self._slice)
-            if self._slice < self.needs:
-                return dataclasses.replace(super()._compute(key, exact, cutoff),
-                                           status=Status.TIME_LIMIT, trajectory=None)
-        return super()._compute(key, exact, cutoff)
+    def slowed(self, key) -> bool:
+        return self.slow is None or key in self.slow
+
+    def search(self, s: Scenario, spec, T: int) -> StepSearch:
+        return StepSearch.of(StepPrograms(s, State.initial(s), spec, T,
+                                          SolveOptions(time_limit_s=32)), solver=self)
+
+    @property
+    def slices(self) -> list[float]:
+        return [slice_s for key, slice_s in self.asked if self.slowed(key)]
 
 
 def rounds_scene():
-    s = random_scene(3)  # m_o = 2, rule 2 with a user rule: its first node gives arm 1 both
+    s = random_scene(1)  # m_o = 2, rule 2; the horizon below its plan needs solves to decide
     return s, specification(s, [0, 1, 2])
 
 
 def test_a_node_left_undecided_does_not_hide_a_plan_of_the_next_ones() -> None:
     s, spec = rounds_scene()
     T = first_feasible(s, spec).horizon
-    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
-    assert search.feasible() and search._witness is not None
-    assert search.slices and set(search.slices) == {2.0}  # a sixteenth of 32 s, one round
-    assert not search.stats.timed_out  # the plan decides the horizon
+    solver = RunsOut()
+    search = solver.search(s, spec, T)
+    # The first node whose relaxations all need a solve (none ruled out by a route) is left
+    # undecided by its first round.
+    solved = [[k for k in search.store.keys(node) if isinstance(k, AloneKey) or k.share]
+              for node in search.skeleton.single_hand()]
+    solver.slow = set(next(keys for keys in solved if keys and not any(
+        search.store.share_ruled_out(k.hand, k.share) for k in keys)))
+    found = search.feasible()
+    assert found.status is Status.FEASIBLE and found.witness is not None  # the plan decides
+    assert solver.slices and set(solver.slices) == {2.0}  # a sixteenth of 32 s, one round
+    passed = len(solver.asked)
+    search.run(found)
+    assert len(solver.asked) > passed  # the optimisation after the pass has no slices
+    assert all(np.isinf(slice_s) for _, slice_s in solver.asked[passed:])
 
 
 def test_the_rounds_give_what_ran_out_of_time_four_times_as_long_until_it_is_decided() -> None:
     s, spec = rounds_scene()
     T = first_feasible(s, spec).horizon - 1  # no plan: every node must be proven infeasible
-    search = SlowFirstNode(s, State.initial(s), spec, T, SolveOptions(time_limit_s=32))
-    search.needs = 8.0
-    assert not search.feasible() and not search.stats.timed_out
-    assert sorted(set(search.slices)) == [2.0, 8.0]
-    assert search._slice == np.inf  # the optimization after the pass has no slices
+    solver = RunsOut(needs=8.0)
+    assert solver.search(s, spec, T).feasible().status is Status.INFEASIBLE
+    assert sorted(set(solver.slices)) == [2.0, 8.0]
 
 
 # --- a node whose joint program runs out ---------------------------------------------------------
 
 
-class JointRunsOut(StepSearch):
+class JointRunsOut(StepPrograms):
     """Every joint node program runs out of time before it finds or proves anything."""
 
     joints = 0
 
-    def joint(self, node, start=None, **kw):
+    def joint(self, node, floor, start=None, **kw):
         self.joints += 1
-        return dataclasses.replace(super().joint(node, start, **kw), status=Status.TIME_LIMIT,
-                                   trajectory=None, cost=np.inf, bound=-np.inf)
+        return dataclasses.replace(super().joint(node, floor, start, **kw),
+                                   status=Status.TIME_LIMIT, trajectory=None, cost=np.inf,
+                                   bound=-np.inf)
 
 
 def test_a_composed_plan_does_not_close_its_node_when_the_joint_program_ran_out() -> None:
@@ -412,10 +452,13 @@ def test_a_composed_plan_does_not_close_its_node_when_the_joint_program_ran_out(
     s = random_scene(0)
     spec = specification(s, [0, 1, 2])
     mono = first_feasible(s, spec)
-    search = JointRunsOut(s, State.initial(s), spec, mono.horizon, SolveOptions(time_limit_s=30))
-    assert search.feasible()
-    res = search.run()
-    assert search.joints > 0
+    programs = JointRunsOut(s, State.initial(s), spec, mono.horizon,
+                            SolveOptions(time_limit_s=30))
+    search = StepSearch.of(programs)
+    found = search.feasible()
+    assert found.status is Status.FEASIBLE
+    res = search.run(found)
+    assert programs.joints > 0
     assert res.status is Status.FEASIBLE and res.gap > 1e-4
     assert res.bound <= mono.cost * (1 + 1e-6) <= res.cost * (1 + 1e-6)
     assert replayed_trace_satisfies(s, spec, res)
