@@ -98,7 +98,7 @@ class Skeleton:
         left out: one probe or one solve decides them all, where each of them would need its
         own. Without hand-over labels for every object, the search is exact over the plans in
         which each object is held by one hand at most; with them (``always``), against the
-        monolithic MILP."""
+        monolithic MILP. ``relays``: relay nodes too (:meth:`handed_over_objects`)."""
         return self.single_hand() + self.widest(relays)
 
     def widest(self, relays: bool, slice_s: float = np.inf) -> list[Node]:
