@@ -357,6 +357,9 @@ NO_TIME = ["--time-limit", "0.000001"]
 
 EXIT_CODES = [
     (["check", "{s}"], 0, "consistent"),
+    # the check leaves the spacing out, and says so
+    (["check", "{s}", "--set", "object_clearance: 0.01"], 0,
+     "the objects' spacing (object_clearance 0.01 m) is not checked"),
     (["plan", "{s}", "--out", "p.json"], 0, "verified"),
     (["plan", "{s}", *NOTHING_TO_DO, "--plot", "p.png"], 0, "nothing to do"),  # a traceback before
     (["plan", "{s}", "--mo", "0"], 2, "argument --mo: must be >= 1"),
