@@ -161,13 +161,11 @@ def render_clearance(results: Path) -> str:
     object contacts, the replans left without a plan, the objects delivered and the deepest
     any hand went into a box."""
     apart = load(results, CLEARANCE_RECORDS[0])
-    by = {(r["m_o"], r["n_o"], r["rule"], r["seed"], r.get("object_clearance")): r
-          for r in apart["runs"]}
     clearance = apart["options"]["apart"]
-    pairs = {rule: [(r, by[key[:4] + (clearance,)]) for key, r in by.items()
-                    if key[2] == rule and key[4] is None and key[:4] + (clearance,) in by
-                    and r["status"] == by[key[:4] + (clearance,)]["status"] == "ok"]
-             for rule in sorted({r["rule"] for r in apart["runs"]})}
+    pairs: dict[int, list] = {}  # rule → (points, apart) runs over the rows
+    for (_, _, rule, _), runs in sorted(importlib.import_module("table2").apart_pairs(
+            apart["runs"]).items()):
+        pairs.setdefault(rule, []).extend(runs)
     loops = []  # points, then apart: the closed loop with each
     for name, expected in zip(CLEARANCE_RECORDS[1:], (None, clearance), strict=True):
         runs = load(results, name)["runs"]

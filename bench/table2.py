@@ -386,9 +386,9 @@ def forms_table(records: list[dict]) -> str:
     return table(header, rows)
 
 
-def apart_table(records: list[dict]) -> str:
-    """``--apart``: each (row, rule, seed) with objects as points and kept apart, both runs
-    verified: mean plan time (wall, and CPU over the worker threads), cost, steps' horizons."""
+def apart_pairs(records: list[dict]) -> dict[tuple, list[tuple[dict, dict]]]:
+    """``--apart``'s runs paired: (m_o, n_o, rule, clearance) → the (points, apart) runs of
+    each seed where both gave a verified plan."""
     by = {(r["m_o"], r["n_o"], r["rule"], r["seed"], r.get("object_clearance")): r
           for r in records}
     pairs: dict[tuple, list] = {}
@@ -396,6 +396,13 @@ def apart_table(records: list[dict]) -> str:
         points = by.get((m, n, rule, seed, None))
         if clearance is not None and points and r["status"] == points["status"] == "ok":
             pairs.setdefault((m, n, rule, clearance), []).append((points, r))
+    return pairs
+
+
+def apart_table(records: list[dict]) -> str:
+    """``--apart``: each (row, rule, seed) with objects as points and kept apart, both runs
+    verified: mean plan time (wall, and CPU over the worker threads), cost, steps' horizons."""
+    pairs = apart_pairs(records)
     header = ["(m_o,n_o)", "rule", "object clearance (m)", "paired runs",
               "time, points / apart (s)", "apart / points", "CPU time, points / apart (s)",
               "apart / points", "cost, points / apart", "horizons, points / apart"]
