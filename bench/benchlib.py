@@ -13,11 +13,13 @@ import json
 import logging
 import os
 import platform
+import signal
 import subprocess
 import sys
 import time
 import timeit
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -199,6 +201,38 @@ def footer(info: dict, t0: float) -> str:
     return (f"\nMachine speed at the start (lower is faster; `benchlib.calibration`): Python loop "
             f"{c['python_loop_s']:.3f} s, HiGHS knapsack {c['highs_knapsack_s']:.3f} s\n"
             f"\nTotal wall time: {time.perf_counter() - t0:.0f} s\n")
+
+
+# The child process that slows this one down (slowed): it stops the process for a share of
+# every period (SIGSTOP, SIGCONT) until the process is gone.
+_THROTTLE = """
+import os, signal, sys, time
+pid, period, stopped = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+while os.getppid() == pid:
+    time.sleep(period - stopped)
+    os.kill(pid, signal.SIGSTOP)
+    time.sleep(stopped)
+    os.kill(pid, signal.SIGCONT)
+"""
+
+
+@contextmanager
+def slowed(factor: float | None, period_s: float = 0.02) -> Iterator[None]:
+    """This process as on a machine ``factor`` times slower, for the length of a ``with``: a
+    child stops it for 1 − 1/factor of every ``period_s`` (all its threads: HiGHS's and
+    CP-SAT's too; wall-clock limits then buy 1/factor of the work, as on the slower machine).
+    :func:`calibration`, measured inside, says how much slower. None: as it is."""
+    if factor is None or factor <= 1:
+        yield
+        return
+    child = subprocess.Popen([sys.executable, "-c", _THROTTLE, str(os.getpid()),
+                              str(period_s), str(period_s * (1 - 1 / factor))])
+    try:
+        yield
+    finally:
+        child.kill()
+        child.wait()
+        os.kill(os.getpid(), signal.SIGCONT)  # in case it was killed between its two signals
 
 
 def machine() -> dict:

@@ -115,8 +115,9 @@ def render_paper(results: Path) -> str:
     table2 = importlib.import_module("table2")
     files = sorted(p.name for p in results.glob("table2*.json"))
     runs, seen = [], {}
-    files = [name for name in files  # a comparison of object_clearance has its own table
-             if load(results, name)["options"].get("apart") is None]
+    files = [name for name in files  # a comparison of object_clearance has its own table,
+             if load(results, name)["options"].get("apart") is None  # so has a slowed machine
+             and load(results, name)["options"].get("slowdown") is None]
     for name in files:
         data = load(results, name)
         for r in data["runs"]:

@@ -55,6 +55,7 @@ from benchlib import (
     options_json,
     parse_seeds,
     run_tasks,
+    slowed,
     table,
     write_json_atomic,
     write_report,
@@ -121,6 +122,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                         "undecided (default where OR-Tools is installed) or none")
     p.add_argument("--solver", choices=SOLVER_BACKENDS, default="highs",
                    help="the MILP solver (default highs)")
+    p.add_argument("--slowdown", type=float, default=None, metavar="F",
+                   help="run as on a machine F times slower (stopped for 1 - 1/F of every 20 "
+                        "ms; the record's calibration says how much slower it was)")
     cluster_arguments(p)
     p.add_argument("--compare", action="store_true",
                    help="also solve every step of every plan as one monolithic MILP from the "
@@ -425,6 +429,8 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
     most = max((r.get("runs_per_host", 1) for r in records), default=1)
     shared = "one run at a time (the machine to itself)" if most <= 1 else \
         f"up to {most} runs at once on a machine (shared: the times include their contention)"
+    if getattr(args, "slowdown", None) is not None:
+        shared += f", slowed down {args.slowdown:g}× (a slower machine)"
     for form in forms:
         parts += [f"Table II, {args.search} search on {getattr(args, 'solver', 'highs')}, horizons "
                   f"{getattr(args, 'horizons', 'exact')}, second prover "
@@ -466,15 +472,17 @@ def main(argv: list[str] | None = None) -> int:
         print(summarize_file(args.summarize))
         return 0
     tasks = grid(args)
-    info = machine()
-    done: list[dict | None] = [None] * len(tasks)  # in grid order, whatever order runs end in
-    progress = Progress(len(tasks))
-    t0 = time.perf_counter()
-    for k, (i, record) in enumerate(run_tasks(run_one, tasks, args.workers, args.scheduler), 1):
-        done[i] = record
-        progress.advance(progress_line(k, len(tasks), record))
-        records = [r for r in done if r is not None]
-        write_json(args.json, args, records, info, complete=k == len(tasks))
+    with slowed(args.slowdown):
+        info = machine()
+        done: list[dict | None] = [None] * len(tasks)  # in grid order, whatever order runs end
+        progress = Progress(len(tasks))
+        t0 = time.perf_counter()
+        for k, (i, record) in enumerate(run_tasks(run_one, tasks, args.workers, args.scheduler),
+                                        1):
+            done[i] = record
+            progress.advance(progress_line(k, len(tasks), record))
+            records = [r for r in done if r is not None]
+            write_json(args.json, args, records, info, complete=k == len(tasks))
     text = report(records, args) + footer(info, t0)
     write_report(args.json, text)
     bad = sum(r["status"] == "verify_failed" for r in records)
