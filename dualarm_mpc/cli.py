@@ -352,8 +352,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
             notes.append(f"witness {seg.witness_cost:.3f} at T = {seg.witness_horizon}")
         if seg.horizons_proven_by_cpsat:
             notes.append("CP-SAT proved T = " + ", ".join(map(str, seg.horizons_proven_by_cpsat)))
-        if not seg.horizon_proven_minimal:
-            notes.append("a shorter horizon undecided")
+        if seg.shorter_plan is not None:
+            notes.append(f"T = {seg.shorter_plan[0]} has a plan at {seg.shorter_plan[1]:.3f}")
+        if seg.horizons_undecided:
+            notes.append("T = " + ", ".join(map(str, seg.horizons_undecided)) + " undecided")
         print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
               f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}"
               + "".join(f"  ({n})" for n in notes), flush=True)

@@ -61,8 +61,12 @@ class StepResult:
     witness_cost: float | None = None
     witness_horizon: int | None = None
     # the horizons below this one that the second prover (solver.prover) proved to have no
-    # plan, the search having left them undecided
+    # plan, the search having left them undecided; those neither decided (or tried in time)
     proofs: tuple[int, ...] = ()
+    undecided: tuple[int, ...] = ()
+    # (horizon, cost) of the plan of a shorter horizon that the step passed over, the witness
+    # being cheaper (sequential.below_witness)
+    passed_over: tuple[int, float] | None = None
     # The pairs of objects whose (C1)–(C2) rows the solve needed (HorizonProgram._solve_apart)
     apart: frozenset[tuple[int, int]] = frozenset()
 

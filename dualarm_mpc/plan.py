@@ -90,8 +90,12 @@ class Segment:
     horizon_proven_minimal: bool = False
     witness_cost: float | None = None  # the no-throw witness's (sequential.witness), if any
     witness_horizon: int | None = None
-    # the shorter horizons proven to have no plan by the second prover (solver.prover: cpsat)
+    # the shorter horizons proven to have no plan by the second prover (solver.prover: cpsat);
+    # those left undecided (neither proven nor given a plan in time)
     horizons_proven_by_cpsat: list[int] = field(default_factory=list)
+    horizons_undecided: list[int] = field(default_factory=list)
+    # [horizon, cost]: a shorter horizon's plan the step passed over, its witness being cheaper
+    shorter_plan: list | None = None
 
     def to_json(self) -> dict:
         return {
@@ -109,6 +113,9 @@ class Segment:
             "witness_cost": self.witness_cost,
             "witness_horizon": self.witness_horizon,
             "horizons_proven_by_cpsat": self.horizons_proven_by_cpsat,
+            "horizons_undecided": self.horizons_undecided,
+            "shorter_plan": None if self.shorter_plan is None else
+            [self.shorter_plan[0], round(self.shorter_plan[1], 9)],
         }
 
     @property

@@ -227,11 +227,13 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
         gap = max(0.0, (found.cost - bound) / max(abs(found.cost), 1e-12))
         best = dataclasses.replace(found, bound=bound, gap=gap, status=(
             Status.OPTIMAL if gap <= options.mip_rel_gap + 1e-9 else Status.FEASIBLE))
-    minimal = ((first is None or first.horizon == best.horizon)
-               and not [t for t in undecided if t < best.horizon])
-    return dataclasses.replace(best, minimal=minimal, witness_cost=found.cost,
-                               witness_horizon=found.horizon,
-                               proofs=_shorter(proofs, best.horizon))
+    passed_over = (first.horizon, first.cost) if first is not None and \
+        first.horizon < best.horizon else None
+    shorter = tuple(t for t in undecided if t < best.horizon)
+    return dataclasses.replace(best, minimal=passed_over is None and not shorter,
+                               witness_cost=found.cost, witness_horizon=found.horizon,
+                               proofs=_shorter(proofs, best.horizon), undecided=shorter,
+                               passed_over=passed_over)
 
 
 def first_plan(scenario: Scenario, state: State, spec: Specification,
@@ -277,10 +279,11 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
             if res.status is Status.ERROR:
                 break
     proofs = prover.proofs()
-    proven = not [t for t in undecided if t not in proofs]
+    undecided = [t for t in undecided if t not in proofs]
     if last is not None and last.status.has_solution:
-        return dataclasses.replace(last, minimal=proven, proofs=_shorter(proofs, last.horizon))
-    raise PlanningError(diagnose(scenario, state, spec, last, options), proven=proven)
+        return dataclasses.replace(last, minimal=not undecided, undecided=tuple(undecided),
+                                   proofs=_shorter(proofs, last.horizon))
+    raise PlanningError(diagnose(scenario, state, spec, last, options), proven=not undecided)
 
 
 @contextmanager
@@ -438,7 +441,9 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
                       cpu_time_s=cpu, binaries=res.binaries, gap=float(res.gap),
                       horizon_proven_minimal=res.minimal,
                       witness_cost=res.witness_cost, witness_horizon=res.witness_horizon,
-                      horizons_proven_by_cpsat=list(res.proofs))
+                      horizons_proven_by_cpsat=list(res.proofs),
+                      horizons_undecided=list(res.undecided),
+                      shorter_plan=None if res.passed_over is None else list(res.passed_over))
         segments.append(seg)
         if progress:
             progress(seg)

@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from scenes import in_the_way, two_objects
+from scenes import OBJECT1, OBJECT2, in_the_way, two_objects
 
 from dualarm_mpc import sequential
 from dualarm_mpc.horizon import solve_step
@@ -15,6 +15,7 @@ from dualarm_mpc.mld import Rect, State
 from dualarm_mpc.plan import Plan, Segment, Trajectory
 from dualarm_mpc.scenario import Scenario, load_scenario
 from dualarm_mpc.sequential import PlanningError, transport
+from dualarm_mpc.solver import Status
 from dualarm_mpc.spec import specification
 from dualarm_mpc.verify import verify
 
@@ -144,6 +145,30 @@ def test_witness_policy_is_never_worse_than_its_witness() -> None:
     plain, _ = sequential.plan_step(exact, state, spec)
     assert plain.witness_cost is None and plain.minimal
     assert res.horizon >= plain.horizon  # the witness policy may trade horizon for cost
+
+
+@pytest.mark.slow  # the monolithic MILP of each shorter horizon
+@pytest.mark.parametrize("horizons", ["witness", "exact"])
+def test_what_a_step_says_of_its_shorter_horizons_holds(horizons: str) -> None:
+    """Every horizon from predictT below the step's is, by the monolithic MILP, as the step
+    reports it: the passed-over plan's horizon has a plan costlier than the step's, the
+    undecided ones are listed, every other one has no plan; minimal means neither. Object 1
+    crosses the table: rule 2 has a plan at T = 8 by a relay, costlier than the witness at 10."""
+    scenario = two_objects(rule=2, objects=[{**OBJECT1, "position": [0.3, 0.1], "goal": "blue"},
+                                            {**OBJECT2, "goal": "red"}],
+                           solver={"time_limit_s": 60.0, "horizons": horizons})
+    state = State.initial(scenario)
+    spec = specification(scenario, [0, 1])
+    res, _ = sequential.plan_step(scenario, state, spec)
+    assert (res.passed_over is not None) == (horizons == "witness")
+    assert res.minimal == (res.passed_over is None and not res.undecided)
+    assert all(T < res.horizon for T in res.undecided)
+    for T in range(sequential.predict_horizon(scenario, state, spec), res.horizon):
+        mono = solve_step(scenario, state, spec, T)
+        if res.passed_over is not None and T == res.passed_over[0]:
+            assert mono.status.has_solution and res.passed_over[1] > res.cost
+        elif T not in res.undecided and (res.passed_over is None or T < res.passed_over[0]):
+            assert mono.status is Status.INFEASIBLE, T
 
 
 def test_no_witness_where_no_throw_is_in_force() -> None:
