@@ -364,13 +364,15 @@ class BestFirst:
         self.programs, self.store, self.skeleton = programs, store, skeleton
         self._composed: dict[Node, StepResult | None] = {}  # compose(node), exact
 
-    def run(self, found: Feasibility) -> StepResult:
-        """From the pass's witness (the first incumbent, if any) over the nodes its ``relays``
+    def run(self, found: Feasibility, incumbent: StepResult | None = None) -> StepResult:
+        """From the pass's witness or ``incumbent``, a plan of the horizon known already,
+        whichever is cheaper (the first incumbent, if any), over the nodes the pass's ``relays``
         say: the best plan and the least open bound, as :func:`step_result` reports them."""
         t0 = time.perf_counter()
         gap = self.programs.options.mip_rel_gap
         heap = _Heap(self.skeleton.nodes(found.relays))
-        best = found.witness
+        best = min((p for p in (found.witness, incumbent) if p is not None),
+                   key=lambda p: p.cost, default=None)
         undecided = np.inf  # the least bound of a node the solver could not close
         while heap:
             node, key = heap.pop()
@@ -548,9 +550,10 @@ class StepSearch:
         """The feasibility pass (:class:`FeasibilityPass`)."""
         return FeasibilityPass(self.programs, self.store, self.skeleton).decide()
 
-    def run(self, found: Feasibility) -> StepResult:
-        """The best-first optimisation (:class:`BestFirst`) after the pass that gave ``found``."""
-        return BestFirst(self.programs, self.store, self.skeleton).run(found)
+    def run(self, found: Feasibility, incumbent: StepResult | None = None) -> StepResult:
+        """The best-first optimisation (:class:`BestFirst`) after the pass that gave ``found``,
+        from ``incumbent`` where it is cheaper than the pass's plan."""
+        return BestFirst(self.programs, self.store, self.skeleton).run(found, incumbent)
 
     def ruled_out(self) -> bool:
         """Whether the relaxations alone prove the horizon infeasible
@@ -589,17 +592,20 @@ def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, hori
 
 def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
                 options: SolveOptions | None = None,
-                below: dict[Key, StepResult] | None = None) -> StepResult:
+                below: dict[Key, StepResult] | None = None,
+                incumbent: StepResult | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
     ``below``: the relaxations with a plan at ``horizon − 1`` (``RelaxationStore.below``),
-    replaced by this horizon's, for the next horizon of the same step."""
+    replaced by this horizon's, for the next horizon of the same step. ``incumbent``: a plan of
+    the horizon known already (the step's no-throw witness), the optimisation's first
+    incumbent and cutoff: only cheaper plans are searched for."""
     t0 = time.perf_counter()
     with _searching(scenario, state, spec, horizon, options, below) as search:
         found = search.feasible()
         if found.status is Status.INFEASIBLE:
             res = step_result(search.programs, None, np.inf, time.perf_counter() - t0)
         else:  # a plan, or undecided: the optimisation reports the time limit then
-            res = search.run(found)
+            res = search.run(found, incumbent)
     if below is not None:
         below.clear()
         below.update(search.store.with_plans())

@@ -77,14 +77,16 @@ def _stop_if_asked(options: SolveOptions | None) -> None:
 
 def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
                   options: SolveOptions | None = None, start=None,
-                  below: dict[Key, StepResult] | None = None) -> StepResult:
+                  below: dict[Key, StepResult] | None = None,
+                  incumbent: StepResult | None = None) -> StepResult:
     """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
     the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
     is a MIP start for the monolithic MILP (:func:`horizon.solve_step`); ``below`` carries the
-    search's relaxations from one horizon to the next (:func:`search.search_step`)."""
+    search's relaxations from one horizon to the next, and ``incumbent`` is a plan of the
+    horizon to start the search's optimisation from (:func:`search.search_step`)."""
     if scenario.solver.search == "monolithic":
         return solve_step(scenario, state, spec, horizon, options, start)
-    return search_step(scenario, state, spec, horizon, options, below)
+    return search_step(scenario, state, spec, horizon, options, below, incumbent)
 
 
 def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> int:
@@ -174,7 +176,8 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
                   on_try: Callable[[StepResult], None] | None = None) -> StepResult:
     """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
     predictT up to T₁ are searched for the first with a plan, as :func:`first_plan` does (T₁
-    has one: the witness), and the step's plan is the cheaper of its optimum and the witness.
+    has one: the witness, the search's first incumbent there), and the step's plan is the
+    cheaper of its optimum and the witness.
     All of it within one budget for the step, ``STEP_BUDGET_SHARE`` of
     ``solver.time_limit_s``, in rounds: each horizon still undecided gets ``FIRST_SLICE_SHARE``
     of the budget, four times as much in the next round, so that one hard horizon does not
@@ -201,7 +204,8 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
                     break
                 limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
                 with prover.searching(T, dataclasses.replace(options, time_limit_s=limit)) as o:
-                    res = solve_horizon(scenario, state, spec, T, o)
+                    res = solve_horizon(scenario, state, spec, T, o, incumbent=(
+                        found if T == found.horizon else None))
                 _stop_if_asked(options)
                 if on_try:
                     on_try(res)

@@ -42,6 +42,7 @@ from dualarm_mpc.spec import (
     specification,
     survives_idling,
     untouchable,
+    with_no_throw,
 )
 from dualarm_mpc.subprograms import BOTH, StepPrograms
 
@@ -462,3 +463,24 @@ def test_a_composed_plan_does_not_close_its_node_when_the_joint_program_ran_out(
     assert res.status is Status.FEASIBLE and res.gap > 1e-4
     assert res.bound <= mono.cost * (1 + 1e-6) <= res.cost * (1 + 1e-6)
     assert replayed_trace_satisfies(s, spec, res)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 5])
+def test_an_incumbent_cuts_the_search_short_and_leaves_its_optimum(seed: int) -> None:
+    """The step's no-throw witness as the first incumbent (``below_witness`` at T₁): the same
+    optimum, proven, as the search from nothing; and the optimum itself comes back proven."""
+    s = random_scene(seed)
+    spec = specification(s, [0, 1, 2])
+    state = State.initial(s)
+    T = first_feasible(s, with_no_throw(spec)).horizon
+    witness = search_step(s, state, with_no_throw(spec), T)
+    assert witness.status is Status.OPTIMAL
+    plain = search_step(s, state, spec, T)
+    from_witness = search_step(s, state, spec, T, incumbent=witness)
+    assert plain.status is from_witness.status is Status.OPTIMAL
+    assert from_witness.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)
+    assert from_witness.cost <= witness.cost + 1e-9
+    assert replayed_trace_satisfies(s, spec, from_witness)
+    again = search_step(s, state, spec, T, incumbent=plain)
+    assert again.status is Status.OPTIMAL
+    assert again.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)
