@@ -177,7 +177,11 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
     predictT up to T₁ are searched for the first with a plan, as :func:`first_plan` does (T₁
     has one: the witness, the search's first incumbent there), and the step's plan is the
-    cheaper of its optimum and the witness.
+    cheaper of its optimum and the witness. What is left of the budget then goes to the step's
+    plan: where the first plan costs more than the witness, T₁ is searched from the witness
+    for a cheaper plan or the proof that there is none; else the first plan's horizon, from it,
+    where the plan is not yet proven optimal.
+
     All of it within one budget for the step, ``STEP_BUDGET_SHARE`` of
     ``solver.time_limit_s``, in rounds: each horizon still undecided gets ``FIRST_SLICE_SHARE``
     of the budget, four times as much in the next round, so that one hard horizon does not
@@ -224,13 +228,29 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
             slice_s *= 4
     proofs = prover.proofs()
     undecided = [t for t in undecided if t not in proofs]
+    # What is left of the budget goes to the step's plan: T₁ searched again from the witness
+    # where the first plan costs more, else the first plan's horizon from it, not yet proven.
+    at_witness = None
+    left = deadline - time.perf_counter()
+    if first is not None and left >= MIN_HORIZON_TIME_S:
+        start = found if first.cost > found.cost else first
+        if start is found or first.status is not Status.OPTIMAL:
+            _stop_if_asked(options)
+            again = solve_horizon(scenario, state, spec, start.horizon,
+                                  dataclasses.replace(options, time_limit_s=left),
+                                  incumbent=start)
+            _stop_if_asked(options)
+            if on_try:
+                on_try(again)
+            if again.status.has_solution:  # as cheap as its start or cheaper
+                at_witness, first = (again, first) if start is found else (None, again)
     if first is not None and first.cost <= found.cost:
-        best = first
-    else:  # the witness's own bound holds for the restriction only; at T₁ the search's does
-        bound = first.bound if first is not None and first.horizon == found.horizon else 0.0
-        gap = max(0.0, (found.cost - bound) / max(abs(found.cost), 1e-12))
-        best = dataclasses.replace(found, bound=bound, gap=gap, status=(
-            Status.OPTIMAL if gap <= options.mip_rel_gap + 1e-9 else Status.FEASIBLE))
+        best = first  # T₁'s search, from the witness, is one of these
+    elif at_witness is not None and at_witness.status.has_solution:
+        best = at_witness  # the witness or cheaper, with the search's bound
+    else:  # the witness's own bound holds for the restriction only
+        best = dataclasses.replace(found, bound=0.0, gap=1.0 if found.cost > 0 else 0.0,
+                                   status=Status.FEASIBLE if found.cost > 0 else Status.OPTIMAL)
     passed_over = (first.horizon, first.cost) if first is not None and \
         first.horizon < best.horizon else None
     shorter = tuple(t for t in undecided if t < best.horizon)

@@ -162,6 +162,8 @@ def test_what_a_step_says_of_its_shorter_horizons_holds(horizons: str) -> None:
     res, _ = sequential.plan_step(scenario, state, spec)
     assert (res.passed_over is not None) == (horizons == "witness")
     assert res.minimal == (res.passed_over is None and not res.undecided)
+    if res.witness_cost is not None:  # T₁ searched from the witness with the budget left
+        assert res.horizon == res.witness_horizon and res.cost < res.witness_cost
     assert all(T < res.horizon for T in res.undecided)
     for T in range(sequential.predict_horizon(scenario, state, spec), res.horizon):
         mono = solve_step(scenario, state, spec, T)
