@@ -113,13 +113,12 @@ def render_paper(results: Path) -> str:
     only; a row per horizon policy and second prover (records older than ``solver.horizons`` ran
     ``exact``, those older than ``solver.prover`` none)."""
     table2 = importlib.import_module("table2")
-    files = sorted(p.name for p in results.glob("table2*.json"))
+    records = {p.name: load(results, p.name) for p in sorted(results.glob("table2*.json"))}
     runs, seen = [], {}
-    files = [name for name in files  # a comparison of object_clearance has its own table,
-             if load(results, name)["options"].get("apart") is None  # so has a slowed machine
-             and load(results, name)["options"].get("slowdown") is None]
-    for name in files:
-        data = load(results, name)
+    # a comparison of object_clearance has its own table, and so has a slowed machine
+    records = {name: data for name, data in records.items()
+               if all(data["options"].get(k) is None for k in ("apart", "slowdown"))}
+    for name, data in records.items():
         for r in data["runs"]:
             if r["task_form"] != "counting" or r["search"] != "skeleton":
                 continue
@@ -147,7 +146,7 @@ def render_paper(results: Path) -> str:
                      f"{s['ok']}/{s['runs']}", fmt(s["mean_cost"], ".3f"), fmt(s["paper_cost"]),
                      fmt(s["mean_time_s"], ".1f"), fmt(s["paper_time_s"], ".4g"),
                      fmt(s["mean_cpu_time_s"], ".1f"), f"{s['steps_optimal']}/{s['steps']}"])
-    sources = [provenance(name, load(results, name), commit=False) for name in files]
+    sources = [provenance(name, data, commit=False) for name, data in records.items()]
     return (table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n")
 
 

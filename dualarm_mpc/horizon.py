@@ -55,20 +55,24 @@ class StepResult:
     variables: program.HorizonVariables | None = None
     message: str = ""
     bound: float = 0.0  # the solver's proven lower bound on the cost
-    # Of a step's plan (sequential.plan_step): every horizon below this one, from predictT, was
-    # proven to have no plan; and the witness's cost and horizon, where there was one.
-    minimal: bool = False
+    # Of a step's plan (sequential.plan_step): the witness's cost and horizon, where there was
+    # one; the horizons below this one, from predictT, that the second prover (solver.prover)
+    # proved to have no plan, the search having left them undecided; those neither decided
+    # nor given a plan in time; and (horizon, cost) of a shorter horizon's plan that the step
+    # passed over, the witness being cheaper (sequential.below_witness).
     witness_cost: float | None = None
     witness_horizon: int | None = None
-    # the horizons below this one that the second prover (solver.prover) proved to have no
-    # plan, the search having left them undecided; those neither decided (or tried in time)
     proofs: tuple[int, ...] = ()
     undecided: tuple[int, ...] = ()
-    # (horizon, cost) of the plan of a shorter horizon that the step passed over, the witness
-    # being cheaper (sequential.below_witness)
     passed_over: tuple[int, float] | None = None
     # The pairs of objects whose (C1)–(C2) rows the solve needed (HorizonProgram._solve_apart)
     apart: frozenset[tuple[int, int]] = frozenset()
+
+    @property
+    def minimal(self) -> bool:
+        """Of a step's plan: every horizon below this one, from predictT, was proven to have no
+        plan (none passed over, none left undecided)."""
+        return self.passed_over is None and not self.undecided
 
     @classmethod
     def solved(cls, result: SolveResult, horizon: int, build_time_s: float, binaries: int,

@@ -196,6 +196,14 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     left_open: set[int] = set()  # the horizons the search has left undecided once
     first = None  # the plan of the lowest horizon that has one
     slice_s = FIRST_SLICE_SHARE * budget
+
+    def solve(T: int, o: SolveOptions, incumbent: StepResult | None) -> StepResult:
+        res = solve_horizon(scenario, state, spec, T, o, incumbent=incumbent)
+        _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
+        if on_try:
+            on_try(res)
+        return res
+
     with second_prover(scenario, state, spec, options, slice_s, on_try) as prover:
         while undecided:
             for T in list(undecided):
@@ -208,11 +216,7 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
                     break
                 limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
                 with prover.searching(T, dataclasses.replace(options, time_limit_s=limit)) as o:
-                    res = solve_horizon(scenario, state, spec, T, o, incumbent=(
-                        found if T == found.horizon else None))
-                _stop_if_asked(options)
-                if on_try:
-                    on_try(res)
+                    res = solve(T, o, found if T == found.horizon else None)
                 if res.status.has_solution:
                     first = res
                     undecided = [t for t in undecided if t < T]  # the higher ones matter no more
@@ -236,14 +240,11 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
         start = found if first.cost > found.cost else first
         if start is found or first.status is not Status.OPTIMAL:
             _stop_if_asked(options)
-            again = solve_horizon(scenario, state, spec, start.horizon,
-                                  dataclasses.replace(options, time_limit_s=left),
-                                  incumbent=start)
-            _stop_if_asked(options)
-            if on_try:
-                on_try(again)
-            if again.status.has_solution:  # as cheap as its start or cheaper
-                at_witness, first = (again, first) if start is found else (None, again)
+            again = solve(start.horizon, dataclasses.replace(options, time_limit_s=left), start)
+            if again.status.has_solution and start is found:  # the witness or cheaper
+                at_witness = again
+            elif again.status.has_solution:
+                first = again
     if first is not None and first.cost <= found.cost:
         best = first  # T₁'s search, from the witness, is one of these
     elif at_witness is not None and at_witness.status.has_solution:
@@ -254,8 +255,7 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     passed_over = (first.horizon, first.cost) if first is not None and \
         first.horizon < best.horizon else None
     shorter = tuple(t for t in undecided if t < best.horizon)
-    return dataclasses.replace(best, minimal=passed_over is None and not shorter,
-                               witness_cost=found.cost, witness_horizon=found.horizon,
+    return dataclasses.replace(best, witness_cost=found.cost, witness_horizon=found.horizon,
                                proofs=_shorter(proofs, best.horizon), undecided=shorter,
                                passed_over=passed_over)
 
@@ -305,7 +305,7 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
     proofs = prover.proofs()
     undecided = [t for t in undecided if t not in proofs]
     if last is not None and last.status.has_solution:
-        return dataclasses.replace(last, minimal=not undecided, undecided=tuple(undecided),
+        return dataclasses.replace(last, undecided=tuple(undecided),
                                    proofs=_shorter(proofs, last.horizon))
     raise PlanningError(diagnose(scenario, state, spec, last, options), proven=not undecided)
 
