@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import sys
@@ -134,6 +135,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="print the tables of an earlier (possibly partial) run's JSON; run nothing")
     args = p.parse_args(argv)
     check_cluster_arguments(p, args)
+    if args.slowdown is not None and not 1 <= args.slowdown < math.inf:
+        p.error(f"--slowdown must be a finite factor >= 1, got {args.slowdown:g}")
     return args
 
 

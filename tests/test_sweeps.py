@@ -79,6 +79,18 @@ def test_workers_and_scheduler_exclude_each_other(capsys) -> None:
     assert "give one" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("factor", ["0.5", "-2", "inf", "nan"])
+def test_a_slowdown_is_a_finite_factor_of_at_least_one(factor: str, capsys) -> None:
+    with pytest.raises(SystemExit):
+        table2.parse_args([*GRID, "--slowdown", factor])
+    assert "--slowdown must be a finite factor >= 1" in capsys.readouterr().err
+
+
+def test_a_slowed_table_says_so(serial) -> None:
+    text = table2.report(serial, table2.parse_args([*GRID, "--slowdown", "1.5"]))
+    assert "slowed down 1.5×" in text
+
+
 def test_run_tasks_yields_every_record_once_with_its_index() -> None:
     tasks = [{"n": n} for n in range(5)]
     got = dict(benchlib.run_tasks(lambda t: {"square": t["n"] ** 2}, tasks))
