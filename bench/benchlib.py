@@ -27,8 +27,8 @@ import numpy as np
 import scipy.sparse as sp
 
 import dualarm_mpc
-from dualarm_mpc.backends import highs_model
-from dualarm_mpc.solver import BACKENDS, StandardForm, installed_backends
+from dualarm_mpc.milp.backends import highs_model
+from dualarm_mpc.milp.solver import BACKENDS, StandardForm, installed_backends
 
 # --- command line ------------------------------------------------------------------------------
 

@@ -2,7 +2,7 @@
 
 What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
 [-0.25, 0.25]² from the seed, reachable goals) with (m_o, n_o) = (2, 6), delivery ``rest`` and a
-goal margin of 0.03 m is run closed loop by :func:`dualarm_mpc.closed_loop.simulate`: the MPC
+goal margin of 0.03 m is run closed loop by :func:`dualarm_mpc.sim.closed_loop.simulate`: the MPC
 planner replans every Δt = 1 s from the measured state while Drake simulates the dual SCARA robot.
 
 * **objects delivered** — counted on the plant at the end of the run: objects whose final (x, y)
@@ -64,9 +64,9 @@ from benchlib import (
     write_report,
 )
 
-from dualarm_mpc.closed_loop import on_robot, simulate
-from dualarm_mpc.mld import REST_SPEED, in_goal
-from dualarm_mpc.scenario import ScenarioError, load_scenario, merge_overrides, parse_override
+from dualarm_mpc.model.mld import REST_SPEED, in_goal
+from dualarm_mpc.model.scenario import ScenarioError, load_scenario, merge_overrides, parse_override
+from dualarm_mpc.sim.closed_loop import on_robot, simulate
 
 SCENARIO = "table1_vd"
 M_O, N_O = 2, 6

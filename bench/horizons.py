@@ -44,12 +44,12 @@ from benchlib import (
 from solvers import METHODS, solve_one
 from table2 import SCENARIO, parse_row
 
-from dualarm_mpc.horizon import solve_options
-from dualarm_mpc.mld import State, delivered_objects
-from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import predict_horizon, select_objects, transport
-from dualarm_mpc.solver import Interrupt
-from dualarm_mpc.spec import specification
+from dualarm_mpc.milp.horizon import solve_options
+from dualarm_mpc.milp.solver import Interrupt
+from dualarm_mpc.model.mld import State, delivered_objects
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.planning.sequential import predict_horizon, select_objects, transport
 
 
 def parse_horizons(text: str) -> list[int]:

@@ -2,8 +2,8 @@
 
 What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
 [-0.25, 0.25]² from the seed, reachable goals, its default (m_o, n_o)) with the robot's settings
-(:func:`dualarm_mpc.closed_loop.on_robot`) runs closed loop while
-:class:`dualarm_mpc.disturbances.RandomDisturbances` disturbs it, once per kind by default
+(:func:`dualarm_mpc.sim.closed_loop.on_robot`) runs closed loop while
+:class:`dualarm_mpc.sim.disturbances.RandomDisturbances` disturbs it, once per kind by default
 (``--per-kind``): an object knocked out of the hand that carries it (``held``), out of its goal
 (``delivered``), anywhere on the table (``table``); a goal moved (``goal``). That module says
 how they are drawn (seeded per run: both rules of a seed get the same disturbances; lockstep, so
@@ -70,9 +70,9 @@ from benchlib import (
 )
 from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal, summary_record
 
-from dualarm_mpc.closed_loop import default_duration, on_robot, simulate
-from dualarm_mpc.disturbances import KINDS, RandomDisturbances
-from dualarm_mpc.scenario import SOLVER_BACKENDS, Scenario, load_scenario, merge_overrides
+from dualarm_mpc.model.scenario import SOLVER_BACKENDS, Scenario, load_scenario, merge_overrides
+from dualarm_mpc.sim.closed_loop import default_duration, on_robot, simulate
+from dualarm_mpc.sim.disturbances import KINDS, RandomDisturbances
 
 SCENARIO = "table1_vd"
 EXTRA_DURATION = 30.0  # simulated s added to simulate's default duration per disturbance

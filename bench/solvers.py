@@ -35,12 +35,12 @@ from pathlib import Path
 from benchlib import fmt, machine, options_json, parse_seeds, table, write_json_atomic, write_report
 from table2 import SCENARIO, parse_row, step_starts
 
-from dualarm_mpc.horizon import HorizonProgram, solve_step
-from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.search import search_step
-from dualarm_mpc.sequential import transport
-from dualarm_mpc.solver import SolverUnavailable, installed_backends
-from dualarm_mpc.spec import specification
+from dualarm_mpc.milp.horizon import HorizonProgram, solve_step
+from dualarm_mpc.milp.solver import SolverUnavailable, installed_backends
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.planning.sequential import transport
+from dualarm_mpc.search.skeleton import search_step
 
 METHODS = ("search", "monolithic")
 

@@ -2,10 +2,10 @@
 
 What it measures: for each (m_o, n_o) row, rule and seed, the scenario ``table1_vd`` (ten objects
 uniform in [-0.25, 0.25]² from the seed, reachable goals, delivery ``reach`` as in the paper) is
-planned with :func:`dualarm_mpc.sequential.transport` and every plan is checked with
-:func:`dualarm_mpc.verify.verify`. "Time" is the plan's total solve time: build and solve of every
-horizon tried in every sequential step (the paper's "calculation time"). Means are over the runs
-that produced a verified plan; planning errors, verification failures and runs stopped by
+planned with :func:`dualarm_mpc.planning.sequential.transport` and every plan is checked with
+:func:`dualarm_mpc.model.verify.verify`. "Time" is the plan's total solve time: build and solve of
+every horizon tried in every sequential step (the paper's "calculation time"). Means are over the
+runs that produced a verified plan; planning errors, verification failures and runs stopped by
 ``--run-budget`` are counted apart and never stop the bench.
 
 Run it (from the repository root)::
@@ -62,13 +62,13 @@ from benchlib import (
     write_report,
 )
 
-from dualarm_mpc.horizon import solve_options, solve_step
-from dualarm_mpc.mld import State
-from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario, ortools_installed
-from dualarm_mpc.sequential import PlanningError, predict_horizon, transport
-from dualarm_mpc.solver import Interrupt
-from dualarm_mpc.spec import specification
-from dualarm_mpc.verify import verify
+from dualarm_mpc.milp.horizon import solve_options, solve_step
+from dualarm_mpc.milp.solver import Interrupt
+from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.scenario import SOLVER_BACKENDS, load_scenario, ortools_installed
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning.sequential import PlanningError, predict_horizon, transport
 
 SCENARIO = "table1_vd"
 ROWS = ((2, 5), (2, 6), (2, 10), (3, 5), (3, 6))

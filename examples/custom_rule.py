@@ -11,11 +11,11 @@ from __future__ import annotations
 
 import sys
 
-from dualarm_mpc.consistency import check
-from dualarm_mpc.plot import plot_plan
-from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import transport
-from dualarm_mpc.verify import verify
+from dualarm_mpc.figures.plan import plot_plan
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning.consistency import check
+from dualarm_mpc.planning.sequential import transport
 
 
 def main(out: str = "custom_rule.png") -> None:

@@ -15,11 +15,11 @@ from __future__ import annotations
 from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import EventStatus
 
-from dualarm_mpc.closed_loop import on_robot
-from dualarm_mpc.diagram import MakeDiagram
-from dualarm_mpc.disturbances import knock, move_goal
-from dualarm_mpc.mld import REST_SPEED, delivered_objects
-from dualarm_mpc.scenario import load_scenario, merge_overrides
+from dualarm_mpc.model.mld import REST_SPEED, delivered_objects
+from dualarm_mpc.model.scenario import load_scenario, merge_overrides
+from dualarm_mpc.sim.closed_loop import on_robot
+from dualarm_mpc.sim.diagram import MakeDiagram
+from dualarm_mpc.sim.disturbances import knock, move_goal
 
 KNOCK_T, KNOCK_TO = 4.0, [-0.15, 0.05]  # s, m: object1 lands here
 MOVE_T, RED = 8.0, [0.3, 0.6, 0.3, 0.6]  # s, the red goal's new box

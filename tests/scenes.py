@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import yaml
 
-from dualarm_mpc.scenario import Scenario, apply_overrides
+from dualarm_mpc.model.scenario import Scenario, apply_overrides
 
 OBJECT1 = {"name": "object1", "position": [0.1, 0.1], "goal": "red"}
 OBJECT2 = {"name": "object2", "position": [-0.1, 0.2], "goal": "blue"}

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from hypothesis import strategies as st
 
-from dualarm_mpc.ltl import (
+from dualarm_mpc.logic.ltl import (
     Always,
     And,
     Atom,

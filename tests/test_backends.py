@@ -19,14 +19,10 @@ import pytest
 from pydrake.solvers import MathematicalProgram
 from test_program import knapsack, market_split
 
-from dualarm_mpc import backends
-from dualarm_mpc.backends import solve, solve_standard_form
-from dualarm_mpc.horizon import HorizonProgram, solve_step
-from dualarm_mpc.mld import State
-from dualarm_mpc.scenario import SOLVER_BACKENDS, load_scenario
-from dualarm_mpc.search import search_step
-from dualarm_mpc.sequential import predict_horizon, select_objects
-from dualarm_mpc.solver import (
+from dualarm_mpc.milp import backends
+from dualarm_mpc.milp.backends import solve, solve_standard_form
+from dualarm_mpc.milp.horizon import HorizonProgram, solve_step
+from dualarm_mpc.milp.solver import (
     BACKENDS,
     Interrupt,
     SolveOptions,
@@ -35,7 +31,11 @@ from dualarm_mpc.solver import (
     installed_backends,
     standard_form,
 )
-from dualarm_mpc.spec import specification
+from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.scenario import SOLVER_BACKENDS, load_scenario
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.planning.sequential import predict_horizon, select_objects
+from dualarm_mpc.search.skeleton import search_step
 
 
 def _param(name: str):
@@ -269,8 +269,8 @@ def test_no_backend_prints_anything() -> None:
     """Solver banners (HiGHS's, Gurobi's licence line, CPLEX's log) went to stdout, into the
     CLI's table."""
     code = ("from test_program import knapsack\n"
-            "from dualarm_mpc.backends import solve\n"
-            "from dualarm_mpc.solver import SolveOptions, installed_backends\n"
+            "from dualarm_mpc.milp.backends import solve\n"
+            "from dualarm_mpc.milp.solver import SolveOptions, installed_backends\n"
             "for b in installed_backends():\n"
             "    assert solve(knapsack()[0], SolveOptions(backend=b)).status.value == 'optimal'\n")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -19,7 +19,7 @@ TIMEOUT_S = 10
 
 
 def run(*args: str, cwd: Path = CORPUS) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "dualarm_mpc.cli.app", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=TIMEOUT_S)
 
 
@@ -168,7 +168,7 @@ def test_nothing_to_do_exits_zero() -> None:
 
 def test_a_plan_prints_no_solver_banner(tmp_path) -> None:
     """HiGHS printed its banner into the step table on the first solve."""
-    done = subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", "plan",
+    done = subprocess.run([sys.executable, "-m", "dualarm_mpc.cli.app", "plan",
                            str(CORPUS / "base.yaml")], capture_output=True, text=True,
                           timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr

@@ -14,15 +14,15 @@ from hypothesis import strategies as st
 from scenes import two_objects
 from strategies import formulas
 
-from dualarm_mpc.consistency import check
-from dualarm_mpc.horizon import solve_options, solve_step
-from dualarm_mpc.ltl import Atom, Formula, nnf, rename_atoms
-from dualarm_mpc.mld import State
-from dualarm_mpc.scenario import Scenario, apply_overrides
-from dualarm_mpc.sequential import transport
-from dualarm_mpc.solver import Status
-from dualarm_mpc.spec import negated_atoms, specification
-from dualarm_mpc.verify import verify
+from dualarm_mpc.logic.ltl import Atom, Formula, nnf, rename_atoms
+from dualarm_mpc.milp.horizon import solve_options, solve_step
+from dualarm_mpc.milp.solver import Status
+from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.scenario import Scenario, apply_overrides
+from dualarm_mpc.model.spec import negated_atoms, specification
+from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning.consistency import check
+from dualarm_mpc.planning.sequential import transport
 
 # Two objects near their goals and the hands: a horizon of 4 delivers both (from T = 3), so every
 # MILP below takes milliseconds. "far" puts b's goal beyond the hands' reach: only a throw

@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.cli: ``dualarm-mpc plan`` writes the plan JSON of the issue and a PNG, and
+"""Tests for cli.app: ``dualarm-mpc plan`` writes the plan JSON of the issue and a PNG, and
 fails with the reason (never a traceback) on a bad scenario or an infeasible task."""
 
 from __future__ import annotations
@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from dualarm_mpc.cli import main
-from dualarm_mpc.plan import Plan
-from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.verify import verify
+from dualarm_mpc.cli.app import main
+from dualarm_mpc.model.plan import Plan
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.model.verify import verify
 
 SCENARIO = """\
 name: cli_small
@@ -193,12 +193,12 @@ def test_infeasible_task_exits_nonzero_with_the_reason(tmp_path, capsys) -> None
 
 
 def _never_plan(monkeypatch) -> None:
-    import dualarm_mpc.sequential
+    import dualarm_mpc.planning.sequential
 
     def transport(*args, **kwargs):
         raise AssertionError("planned although the input was bad")
 
-    monkeypatch.setattr(dualarm_mpc.sequential, "transport", transport)
+    monkeypatch.setattr(dualarm_mpc.planning.sequential, "transport", transport)
 
 
 @pytest.mark.parametrize(

@@ -9,9 +9,9 @@ import json
 import pytest
 from test_backends import EVERY
 
-from dualarm_mpc import backends
-from dualarm_mpc.cli import main
-from dualarm_mpc.solver import BACKENDS
+from dualarm_mpc.cli.app import main
+from dualarm_mpc.milp import backends
+from dualarm_mpc.milp.solver import BACKENDS
 
 SCENARIO = """\
 name: cli_solvers

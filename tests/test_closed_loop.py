@@ -1,9 +1,10 @@
-"""Closed-loop tests of :func:`dualarm_mpc.closed_loop.simulate`: the MPC planner drives the
+"""Closed-loop tests of :func:`dualarm_mpc.sim.closed_loop.simulate`: the MPC planner drives the
 simulated dual SCARA robot in Drake, and every object must end *physically* at rest inside its goal.
 
-Everything here is judged on the plant, through the run's :class:`~dualarm_mpc.closed_loop.Summary`
-(where each object ended, how fast it still moves, when it came to rest in its goal), never on the
-planner's own plan. Scenes are small (1–3 objects) so the whole file runs in about two minutes:
+Everything here is judged on the plant, through the run's
+:class:`~dualarm_mpc.sim.closed_loop.Summary` (where each object ended, how fast it still moves,
+when it came to rest in its goal), never on the planner's own plan. Scenes are small (1–3 objects)
+so the whole file runs in about two minutes:
 
 * a small §V-D-like scene with reachable goals, rule 1 and rule 2 — every object rests in its goal,
   every replan is recorded with a status (and its wall time, kept out of the lockstep JSON);
@@ -35,11 +36,12 @@ import numpy as np
 import pytest
 from scenes import ONE_ON_THE_ROBOT, in_the_way, yaml_text
 
-from dualarm_mpc.cli import main
-from dualarm_mpc.closed_loop import Summary, on_robot, simulate
-from dualarm_mpc.mld import REST_SPEED, State  # REST_SPEED: "at rest" as the summary counts it
-from dualarm_mpc.recording import is_self_contained
-from dualarm_mpc.scenario import (
+from dualarm_mpc.cli.app import main
+from dualarm_mpc.model.mld import (  # REST_SPEED: "at rest" as the summary counts it
+    REST_SPEED,
+    State,
+)
+from dualarm_mpc.model.scenario import (
     Event,
     ObjectSpec,
     Robot,
@@ -48,11 +50,13 @@ from dualarm_mpc.scenario import (
     apply_overrides,
     load_scenario,
 )
-from dualarm_mpc.sequential import solve_horizon
+from dualarm_mpc.planning.sequential import solve_horizon
+from dualarm_mpc.sim.closed_loop import Summary, on_robot, simulate
+from dualarm_mpc.sim.recording import is_self_contained
 
 pytestmark = pytest.mark.slow  # closed-loop simulations in Drake, seconds to minutes each
 
-# Statuses a replan may record: the solver's (dualarm_mpc.solver.Status), "done" once every
+# Statuses a replan may record: the solver's (dualarm_mpc.milp.solver.Status), "done" once every
 # object rests in (or slides into) its goal, "stuck" when the objects left can provably no longer
 # reach their goals, "no_horizon" when no horizon was tried, "searching" / "over_budget" when the
 # replan's wall-time budget ran out (the search goes on at rest / the plan in force is kept),

@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.consistency: a task that conflicts with the rules or the bounds is named
+"""Tests for planning.consistency: a task that conflicts with the rules or the bounds is named
 before planning — which objects, a minimal set of rules, and why in plain words — and a task
 that has a plan passes."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 from scenes import TWO_OBJECTS
 
-from dualarm_mpc.consistency import check
-from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.planning.consistency import check
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.cpsat, the CP-SAT relaxation of a horizon's MILP and the second prover.
+"""Tests for milp.cpsat, the CP-SAT relaxation of a horizon's MILP and the second prover.
 
 Sound: every point of a program maps to a point of its relaxation — on random small programs
 (hypothesis: real coefficients, big-M rows, truth columns in the encoder's shapes, equalities met
@@ -23,20 +23,20 @@ from scenes import random_scene
 
 pytest.importorskip("ortools", reason="OR-Tools is not installed (pip install '.[ortools]')")
 
-from dualarm_mpc import cpsat  # noqa: E402
-from dualarm_mpc.backends import solve_standard_form  # noqa: E402
-from dualarm_mpc.horizon import HorizonProgram, solve_options  # noqa: E402
-from dualarm_mpc.mld import State  # noqa: E402
-from dualarm_mpc.scenario import ScenarioError, load_scenario  # noqa: E402
-from dualarm_mpc.sequential import predict_horizon, second_prover  # noqa: E402
-from dualarm_mpc.solver import (  # noqa: E402
+from dualarm_mpc.milp import cpsat  # noqa: E402
+from dualarm_mpc.milp.backends import solve_standard_form  # noqa: E402
+from dualarm_mpc.milp.horizon import HorizonProgram, solve_options  # noqa: E402
+from dualarm_mpc.milp.solver import (  # noqa: E402
     Interrupt,
     SolveOptions,
     SolverUnavailable,
     StandardForm,
     Status,
 )
-from dualarm_mpc.spec import specification  # noqa: E402
+from dualarm_mpc.model.mld import State  # noqa: E402
+from dualarm_mpc.model.scenario import ScenarioError, load_scenario  # noqa: E402
+from dualarm_mpc.model.spec import specification  # noqa: E402
+from dualarm_mpc.planning.sequential import predict_horizon, second_prover  # noqa: E402
 
 QUICK = SolveOptions(time_limit_s=10.0)
 

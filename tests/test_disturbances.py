@@ -10,11 +10,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from dualarm_mpc import disturbances as dist
-from dualarm_mpc.closed_loop import on_robot, simulate
-from dualarm_mpc.disturbances import World
-from dualarm_mpc.mld import Rect, State
-from dualarm_mpc.scenario import (
+from dualarm_mpc.model.mld import Rect, State
+from dualarm_mpc.model.scenario import (
     Event,
     ObjectSpec,
     Robot,
@@ -23,6 +20,9 @@ from dualarm_mpc.scenario import (
     apply_overrides,
     load_scenario,
 )
+from dualarm_mpc.sim import disturbances as dist
+from dualarm_mpc.sim.closed_loop import on_robot, simulate
+from dualarm_mpc.sim.disturbances import World
 
 
 def vd(rule: int = 1, seed: int = 0) -> Scenario:

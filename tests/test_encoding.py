@@ -1,8 +1,8 @@
-"""Tests for dualarm_mpc.encoding: the LTL encoder against the direct evaluator (property-based).
+"""Tests for milp.encoding: the LTL encoder against the direct evaluator (property-based).
 
 Each example builds a tiny MILP whose atoms are fixed (decision atoms) or linked one-sidedly to
 fixed "positions" (geometric atoms), encodes a random formula, solves it with HiGHS and compares
-feasibility with :func:`dualarm_mpc.evaluate.evaluate`, which shares no code with the encoder.
+feasibility with :func:`dualarm_mpc.logic.evaluate.evaluate`, which shares no code with the encoder.
 """
 
 from __future__ import annotations
@@ -16,17 +16,17 @@ from hypothesis import strategies as st
 from pydrake.solvers import MathematicalProgram
 from strategies import formulas, traces
 
-from dualarm_mpc import sequential
-from dualarm_mpc.backends import solve
-from dualarm_mpc.encoding import Encoder, EncodingError, Literal
-from dualarm_mpc.evaluate import evaluate
-from dualarm_mpc.horizon import build_program, solve_step
-from dualarm_mpc.linear import Rows, bound, new_variables
-from dualarm_mpc.ltl import Atom, F, G, atoms, nnf, parse
-from dualarm_mpc.mld import State
-from dualarm_mpc.scenario import Scenario, apply_overrides
-from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import negated_atoms, specification
+from dualarm_mpc.logic.evaluate import evaluate
+from dualarm_mpc.logic.ltl import Atom, F, G, atoms, nnf, parse
+from dualarm_mpc.milp.backends import solve
+from dualarm_mpc.milp.encoding import Encoder, EncodingError, Literal
+from dualarm_mpc.milp.horizon import build_program, solve_step
+from dualarm_mpc.milp.linear import Rows, bound, new_variables
+from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.scenario import Scenario, apply_overrides
+from dualarm_mpc.model.spec import negated_atoms, specification
+from dualarm_mpc.planning import sequential
 
 P, Q, R = Atom("p"), Atom("q"), Atom("r")
 ATOMS = [P, Q, R]

@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.evaluate: every operator by hand, especially at the trace's last step."""
+"""Tests for logic.evaluate: every operator by hand, especially at the trace's last step."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given, settings
 from strategies import formulas, traces
 
-from dualarm_mpc.evaluate import evaluate, truth_table
-from dualarm_mpc.ltl import (
+from dualarm_mpc.logic.evaluate import evaluate, truth_table
+from dualarm_mpc.logic.ltl import (
     FALSE,
     TRUE,
     WX,

@@ -10,7 +10,7 @@ import json
 import pytest
 from scenes import TWO_OBJECTS, yaml_text
 
-from dualarm_mpc.cli import main
+from dualarm_mpc.cli.app import main
 
 SCENARIO = yaml_text(TWO_OBJECTS, name="export", rule=1, m_o=1,
                      solver={"time_limit_s": 30, "max_horizon": 15, "search": "monolithic"})

@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from strategies import formulas
 
-from dualarm_mpc.ltl import Atom, LTLSyntaxError, parse
-from dualarm_mpc.scenario import (
+from dualarm_mpc.logic.ltl import Atom, LTLSyntaxError, parse
+from dualarm_mpc.model.scenario import (
     YAML_FIELDS,
     Event,
     ObjectSpec,
@@ -22,7 +22,7 @@ from dualarm_mpc.scenario import (
     load_scenario,
     scenario_path,
 )
-from dualarm_mpc.spec import rule_formulas
+from dualarm_mpc.model.spec import rule_formulas
 
 # Each test draws a few hundred inputs; the deadline is off: these tests are about what escapes,
 # never about time.

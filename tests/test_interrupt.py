@@ -8,12 +8,12 @@ import dataclasses
 import json
 import time
 
-from dualarm_mpc.horizon import solve_options
-from dualarm_mpc.plan import Plan
-from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.sequential import transport
-from dualarm_mpc.solver import Interrupt
-from dualarm_mpc.verify import verify
+from dualarm_mpc.milp.horizon import solve_options
+from dualarm_mpc.milp.solver import Interrupt
+from dualarm_mpc.model.plan import Plan
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning.sequential import transport
 
 
 def test_a_stop_after_the_first_step_returns_it_as_a_partial_plan() -> None:
@@ -36,10 +36,10 @@ def test_a_stop_before_the_first_step_returns_the_initial_state() -> None:
 
 
 def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monkeypatch) -> None:
-    from dualarm_mpc import cli
+    from dualarm_mpc.cli import app as cli
 
     monkeypatch.setattr(cli, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
-    from dualarm_mpc import sequential
+    from dualarm_mpc.planning import sequential
 
     def slow_first_step(scenario, options, progress, tried):  # a step longer than a 0.1 s tick
         return transport(scenario, options, lambda seg: (time.sleep(0.5), progress(seg)), tried)

@@ -1,6 +1,7 @@
-"""The package's import graph follows the layers of docs/README.md ("Layers"): every module is
-in a layer, imports only from the layers before its own, and no import cycle exists (function-
-level imports included: they hide a cycle, they do not break it)."""
+"""The package's import graph follows the layers of docs/README.md ("Layers"): every module is in
+a layer's subpackage, imports only from its own subpackage and the layers before it, and no import
+cycle exists (function-level imports included: they hide a cycle, they do not break it). The
+package's own ``__init__`` is the public face above every layer and is not in the line."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ PACKAGE = ROOT / "dualarm_mpc"
 
 
 def layers() -> list[set[str]]:
-    """The layer line of docs/README.md: layers split by →, modules in a layer by commas."""
+    """The layer line of docs/README.md: layers (subpackages) split by →, several in one layer by
+    commas."""
     text = (ROOT / "docs" / "README.md").read_text()
     section = text.split("## Layers", 1)[1].split("\n## ", 1)[0]
     (line,) = re.findall(r"`([^`]*→[^`]*)`", section, re.S)
@@ -21,7 +23,7 @@ def layers() -> list[set[str]]:
 
 
 def unit(module: str) -> str:
-    """A module's name in the layer line: a subpackage's modules count as the subpackage."""
+    """A module's layer: its subpackage."""
     return module.split(".")[0]
 
 

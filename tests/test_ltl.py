@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.ltl: construction, parser, printer round trip, NNF, placeholders."""
+"""Tests for dualarm_mpc.logic.ltl: construction, parser, printer round trip, NNF, placeholders."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from strategies import formulas, traces
 
-from dualarm_mpc.evaluate import truth_table
-from dualarm_mpc.ltl import (
+from dualarm_mpc.logic.evaluate import truth_table
+from dualarm_mpc.logic.ltl import (
     FALSE,
     MAX_DEPTH,
     TRUE,

@@ -19,8 +19,8 @@ import random
 import pytest
 from strategies import BINARY, UNARY
 
-from dualarm_mpc.evaluate import truth_table
-from dualarm_mpc.ltl import (
+from dualarm_mpc.logic.evaluate import truth_table
+from dualarm_mpc.logic.ltl import (
     Always,
     And,
     Atom,

@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.mld: re-simulation by hand, the constraint checker, sound reachability."""
+"""Tests for model.mld: re-simulation by hand, the constraint checker, sound reachability."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from dualarm_mpc.mld import (
+from dualarm_mpc.model.mld import (
     Model,
     Rect,
     State,
@@ -20,7 +20,7 @@ from dualarm_mpc.mld import (
     standing,
     violations,
 )
-from dualarm_mpc.plan import Trajectory
+from dualarm_mpc.model.plan import Trajectory
 
 PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

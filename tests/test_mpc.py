@@ -1,4 +1,4 @@
-"""The MPC core (``dualarm_mpc.mpc``) on its own, without a Diagram: one replan from a measured
+"""The MPC core (``planning.mpc``) on its own, without a Diagram: one replan from a measured
 state and the goals to a plan and its record; nothing kept but the state it returns."""
 
 from __future__ import annotations
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from scenes import two_objects
 
-from dualarm_mpc.mld import REST_SPEED, State, in_goal
-from dualarm_mpc.mpc import SEARCHING, STILL_SPEED, MpcState, Replanner
-from dualarm_mpc.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
-from dualarm_mpc.sequential import solve_horizon
-from dualarm_mpc.solver import Status
-from dualarm_mpc.spec import specification
+from dualarm_mpc.milp.solver import Status
+from dualarm_mpc.model.mld import REST_SPEED, State, in_goal
+from dualarm_mpc.model.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.planning.mpc import SEARCHING, STILL_SPEED, MpcState, Replanner
+from dualarm_mpc.planning.sequential import solve_horizon
 
 GOALS = {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]}
 
@@ -102,7 +102,7 @@ def _in_force(sc: Scenario, obj: np.ndarray, step_objects: tuple[int, ...], hand
     """A plan made at t = 0, three steps long, that holds the hands at ``hand`` (their start by
     default) with ``grasp`` (2, N) (nothing held by default) and every object at rest at
     ``obj`` (N, 2)."""
-    from dualarm_mpc.plan import TimedTrajectory, Trajectory
+    from dualarm_mpc.model.plan import TimedTrajectory, Trajectory
 
     n = len(obj)
     hand = np.array(sc.robot.hand_start if hand is None else hand, float)
@@ -224,7 +224,7 @@ def test_the_core_needs_no_drake_system() -> None:
     import subprocess
     import sys
 
-    code = ("import sys, dualarm_mpc.mpc; "
+    code = ("import sys, dualarm_mpc.planning.mpc; "
             "print(sorted(m for m in sys.modules if m.startswith('pydrake.systems')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

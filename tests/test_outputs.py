@@ -19,8 +19,8 @@ from pathlib import Path
 import pytest
 from scenes import ONE_ON_THE_ROBOT, yaml_text
 
-from dualarm_mpc import outputs
-from dualarm_mpc.cli import main
+from dualarm_mpc.base import outputs
+from dualarm_mpc.cli.app import main
 
 BASE = Path(__file__).parent / "bad_inputs" / "base.yaml"  # two objects, planned in 0.1 s
 LIMIT_S = 120
@@ -30,12 +30,12 @@ STOP_S = 10.0
 
 
 def cli(*args: str, cwd: Path, **kwargs) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "dualarm_mpc.cli", *args], cwd=cwd,
+    return subprocess.Popen([sys.executable, "-m", "dualarm_mpc.cli.app", *args], cwd=cwd,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)
 
 
 def run(*args: str, cwd: Path, **kwargs) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "dualarm_mpc.cli.app", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=LIMIT_S, **kwargs)
 
 
@@ -174,7 +174,7 @@ def test_a_read_only_directory_is_refused_before_any_work(scene) -> None:
     (d / "ro").mkdir()
     (d / "ro").chmod(0o555)
     try:
-        done = subprocess.run([*AS_A_USER, sys.executable, "-m", "dualarm_mpc.cli", "plan",
+        done = subprocess.run([*AS_A_USER, sys.executable, "-m", "dualarm_mpc.cli.app", "plan",
                                scenario.name, "--out", "ro/p.json"], cwd=d, capture_output=True,
                               text=True, timeout=LIMIT_S)
         assert done.returncode == 2, done.stderr
@@ -322,7 +322,7 @@ def test_a_stdout_closed_from_the_start_does_not_cost_the_plan(scene) -> None:
     plan.json."""
     scenario, before = scene
     d = scenario.parent
-    done = subprocess.run([sys.executable, "-m", "dualarm_mpc.cli", "plan", scenario.name,
+    done = subprocess.run([sys.executable, "-m", "dualarm_mpc.cli.app", "plan", scenario.name,
                            "--out", "plan.json"], cwd=d, stderr=subprocess.PIPE, text=True,
                           timeout=LIMIT_S, preexec_fn=lambda: os.close(1))
     assert done.returncode == 0, done.stderr
@@ -331,8 +331,8 @@ def test_a_stdout_closed_from_the_start_does_not_cost_the_plan(scene) -> None:
 
 
 def test_a_long_check_says_it_is_still_checking(monkeypatch, capsys) -> None:
-    from dualarm_mpc import cli as cli_module
-    from dualarm_mpc import consistency
+    from dualarm_mpc.cli import app as cli_module
+    from dualarm_mpc.planning import consistency
 
     monkeypatch.setattr(cli_module, "HEARTBEAT_S", 0.0)  # every tick: the line a long check prints
     check = consistency.check
@@ -384,7 +384,7 @@ def test_each_exit_code_of_the_table(scene, robot, args, code, message) -> None:
 
 
 def test_the_table_is_in_the_module_docstring_and_the_docs() -> None:
-    import dualarm_mpc.cli as cli_module
+    import dualarm_mpc.cli.app as cli_module
 
     docs = (Path(__file__).parents[1] / "docs" / "cli.md").read_text()
     for text in (cli_module.__doc__, docs):

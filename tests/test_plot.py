@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from matplotlib.colors import to_hex
 
-from dualarm_mpc.palette import ARM_COLOURS
-from dualarm_mpc.plan import Plan, Segment, Trajectory
-from dualarm_mpc.plot import plan_figure, plot_plan
+from dualarm_mpc.base.palette import ARM_COLOURS
+from dualarm_mpc.figures.plan import plan_figure, plot_plan
+from dualarm_mpc.model.plan import Plan, Segment, Trajectory
 
 DT = 0.5
 

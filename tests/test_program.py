@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.program (the MILP of one horizon) and dualarm_mpc.solver (HiGHS adapter).
+"""Tests for milp.program (the MILP of one horizon) and milp.solver (HiGHS adapter).
 
 The solver's raw solution of a step must be the model's own trajectory: replaying its forces and
 grasps through :func:`mld.replay` (which shares no code with the MILP) reproduces its positions.
@@ -14,13 +14,13 @@ import scenes
 from pydrake.solvers import MathematicalProgram
 from scenes import OBJECT1, OBJECT2
 
-from dualarm_mpc import sequential
-from dualarm_mpc.backends import solve
-from dualarm_mpc.horizon import HorizonProgram, build_program, solve_step
-from dualarm_mpc.mld import Model, State, replay, violations
-from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.solver import SolveOptions, Status, standard_form
-from dualarm_mpc.spec import specification
+from dualarm_mpc.milp.backends import solve
+from dualarm_mpc.milp.horizon import HorizonProgram, build_program, solve_step
+from dualarm_mpc.milp.solver import SolveOptions, Status, standard_form
+from dualarm_mpc.model.mld import Model, State, replay, violations
+from dualarm_mpc.model.scenario import Scenario, load_scenario
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.planning import sequential
 
 
 def two_objects(**overrides) -> Scenario:

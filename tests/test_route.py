@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.route (the route bound): it never exceeds what the MILP allows.
+"""Tests for dualarm_mpc.model.route (the route bound): it never exceeds what the MILP allows.
 
 Soundness is what matters: when the bound says hand i needs more than T steps to deliver a set,
 the one-hand program of horizon T (the search's relaxation, the same MILP the search would
@@ -15,14 +15,14 @@ import itertools
 import numpy as np
 import pytest
 
-from dualarm_mpc import route
-from dualarm_mpc.backends import solve_standard_form
-from dualarm_mpc.horizon import HorizonProgram, solve_step
-from dualarm_mpc.mld import N_HANDS, Model, State, in_goal
-from dualarm_mpc.route import axis_steps, axis_times, horizon_bound, orders, route_steps
-from dualarm_mpc.scenario import load_scenario
-from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import restricted, specification
+from dualarm_mpc.milp.backends import solve_standard_form
+from dualarm_mpc.milp.horizon import HorizonProgram, solve_step
+from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.model import route
+from dualarm_mpc.model.mld import N_HANDS, Model, State, in_goal
+from dualarm_mpc.model.route import axis_steps, axis_times, horizon_bound, orders, route_steps
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.model.spec import restricted, specification
 
 
 def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:

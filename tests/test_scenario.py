@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.scenario: built-in files, overrides, one test per error path."""
+"""Tests for dualarm_mpc.model.scenario: built-in files, overrides, one test per error path."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dualarm_mpc.scenario import (
+from dualarm_mpc.model.scenario import (
     BUILTIN,
     YAML_FIELDS,
     Scenario,
@@ -149,7 +149,7 @@ def test_random_objects_are_reproducible_from_the_seed() -> None:
 
 
 def test_random_objects_in_region_and_count() -> None:
-    from dualarm_mpc.scenario import RandomObjects
+    from dualarm_mpc.model.scenario import RandomObjects
 
     spec = RandomObjects(count=25, region=[0.1, 0.3, -0.2, 0.0], grasp_half_size=0.04)
     objs = random_objects(spec, ["g1", "g2"], seed=3)
@@ -624,7 +624,7 @@ def test_alias_expansion_is_capped_before_anything_is_built() -> None:
 
 
 def test_every_number_field_has_a_range() -> None:
-    from dualarm_mpc.scenario import Event, ObjectSpec, RandomObjects, SolverSettings
+    from dualarm_mpc.model.scenario import Event, ObjectSpec, RandomObjects, SolverSettings
 
     s = Scenario()
     numeric = (int, float, int | None, float | None, list[float], list[list[float]],
@@ -639,7 +639,7 @@ def test_every_number_field_has_a_range() -> None:
 
 def test_the_docs_table_states_the_ranges_of_the_code() -> None:
     """docs/scenarios.md's Fields tables against each field's Range."""
-    from dualarm_mpc.scenario import COORDINATE, _fields, _owner
+    from dualarm_mpc.model.scenario import COORDINATE, _fields, _owner
 
     docs = (Path(__file__).parents[1] / "docs" / "scenarios.md").read_text()
     rows = dict(re.findall(r"^\| `([\w.\[\]]+)`[^|]*\|[^\n]*\| ([^|]*) \| [^|]* \|$", docs, re.M))
@@ -667,10 +667,10 @@ def test_the_docs_table_states_the_ranges_of_the_code() -> None:
 
 def test_the_largest_horizon_builds_a_program() -> None:
     """solver.max_horizon's maximum: the encoder once recursed T deep (RecursionError at 1000)."""
-    from dualarm_mpc.horizon import build_program
-    from dualarm_mpc.mld import State
-    from dualarm_mpc.scenario import MAX_HORIZON
-    from dualarm_mpc.spec import specification
+    from dualarm_mpc.milp.horizon import build_program
+    from dualarm_mpc.model.mld import State
+    from dualarm_mpc.model.scenario import MAX_HORIZON
+    from dualarm_mpc.model.spec import specification
 
     s = load_scenario("table1_vd", {"random_objects": {"count": 1}, "m_o": 1, "n_o": 1,
                                     "rules": ["F theta[1]", "eta[1,1] U theta[1]",
@@ -694,7 +694,7 @@ def test_caps_are_checked_on_loading() -> None:
 
 
 def test_a_rule_given_twice_is_in_force_once() -> None:
-    from dualarm_mpc.spec import rule_formulas
+    from dualarm_mpc.model.spec import rule_formulas
 
     s = load_scenario("table1_vc", {"rules": ["G !eta[1,2]", "G !eta[1,2]", "F theta[1]"]})
     assert [name for name, _ in rule_formulas(s)][-2:] == ["rules[0] G !eta[1,2]",
@@ -717,7 +717,7 @@ def test_the_arms_reach_the_whole_hand_range(override: str, prefix: str) -> None
 
 
 def test_the_rules_expansion_is_capped_with_the_horizon() -> None:
-    from dualarm_mpc.spec import rule_formulas
+    from dualarm_mpc.model.spec import rule_formulas
 
     rule = "G(" + " | ".join(f"eta[{1 + k % 2},j]" for k in range(800)) + ")"  # 802 nodes
     s = load_scenario("table1_vc", {"rules": [rule], "n_o": 6})  # 6 instances: 4,812 nodes

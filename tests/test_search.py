@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.search (the skeleton search) and the monotonicity check in spec.py.
+"""Tests for search.skeleton (the skeleton search) and the monotonicity check in spec.py.
 
 The search must return the monolithic MILP's optimum of the same horizon: checked on random
 small steps (seeded: states, both rules, a user rule, both delivery modes) against
@@ -18,11 +18,12 @@ from hypothesis import strategies as st
 from scenes import random_scene, scene
 from strategies import formulas, traces
 
-from dualarm_mpc.backends import solve_standard_form
-from dualarm_mpc.evaluate import evaluate
-from dualarm_mpc.horizon import HorizonProgram, solve_options, solve_step
-from dualarm_mpc.ltl import Atom, parse
-from dualarm_mpc.mld import (
+from dualarm_mpc.logic.evaluate import evaluate
+from dualarm_mpc.logic.ltl import Atom, parse
+from dualarm_mpc.milp.backends import solve_standard_form
+from dualarm_mpc.milp.horizon import HorizonProgram, solve_options, solve_step
+from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.model.mld import (
     POSITION_TOL,
     Model,
     State,
@@ -31,11 +32,8 @@ from dualarm_mpc.mld import (
     standing,
     violations,
 )
-from dualarm_mpc.relaxations import AloneKey, HandKey, Request, solve_relaxation
-from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.search import StepSearch, search_step
-from dualarm_mpc.solver import SolveOptions, Status
-from dualarm_mpc.spec import (
+from dualarm_mpc.model.scenario import Scenario, load_scenario
+from dualarm_mpc.model.spec import (
     RULE_TEXT,
     expand,
     rule_formulas,
@@ -44,7 +42,9 @@ from dualarm_mpc.spec import (
     untouchable,
     with_no_throw,
 )
-from dualarm_mpc.subprograms import BOTH, StepPrograms
+from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
+from dualarm_mpc.search.skeleton import StepSearch, search_step
+from dualarm_mpc.search.subprograms import BOTH, StepPrograms
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
 

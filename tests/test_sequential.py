@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.sequential and dualarm_mpc.verify: whole plans, checked by an oracle that
+"""Tests for planning.sequential and model.verify: whole plans, checked by an oracle that
 can fail (re-simulation + direct LTL evaluation), and the reasons given when there is no plan."""
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 from scenes import OBJECT1, OBJECT2, in_the_way, two_objects
 
-from dualarm_mpc import sequential
-from dualarm_mpc.horizon import solve_step
-from dualarm_mpc.mld import Rect, State
-from dualarm_mpc.plan import Plan, Segment, Trajectory
-from dualarm_mpc.scenario import Scenario, load_scenario
-from dualarm_mpc.sequential import PlanningError, transport
-from dualarm_mpc.solver import Status
-from dualarm_mpc.spec import specification
-from dualarm_mpc.verify import verify
+from dualarm_mpc.milp.horizon import solve_step
+from dualarm_mpc.milp.solver import Status
+from dualarm_mpc.model.mld import Rect, State
+from dualarm_mpc.model.plan import Plan, Segment, Trajectory
+from dualarm_mpc.model.scenario import Scenario, load_scenario
+from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning import sequential
+from dualarm_mpc.planning.sequential import PlanningError, transport
 
 TOL = 1e-6
 
@@ -232,7 +232,7 @@ def test_verify_catches_a_changed_force(rule2_plan) -> None:
 def test_verify_catches_a_consistent_but_wrong_plan(rule2_plan) -> None:
     """Re-simulate a plan whose grasps are all dropped: the replay matches, but the objects are
     never moved, so φ_task is false and no object ends in its goal."""
-    from dualarm_mpc.mld import Model, replay
+    from dualarm_mpc.model.mld import Model, replay
 
     scenario, p = rule2_plan
     g = np.zeros_like(p.trajectory.grasp)
@@ -244,7 +244,7 @@ def test_verify_catches_a_consistent_but_wrong_plan(rule2_plan) -> None:
 
 
 def test_verify_catches_a_force_above_the_bound(rule2_plan) -> None:
-    from dualarm_mpc.mld import Model, replay
+    from dualarm_mpc.model.mld import Model, replay
 
     scenario, p = rule2_plan
     f = p.trajectory.force.copy()

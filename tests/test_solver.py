@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.solver at its boundary: what it refuses. The MILP solves themselves are
+"""Tests for milp.solver at its boundary: what it refuses. The MILP solves themselves are
 tested in test_program.py (HiGHS) and test_backends.py (every installed backend)."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from pydrake.solvers import MathematicalProgram
 
-from dualarm_mpc.backends import solve
-from dualarm_mpc.solver import Status, standard_form
+from dualarm_mpc.milp.backends import solve
+from dualarm_mpc.milp.solver import Status, standard_form
 
 
 def _linear_program() -> tuple[MathematicalProgram, np.ndarray]:

@@ -8,7 +8,7 @@ import argparse
 import pytest
 import solvers
 
-from dualarm_mpc.solver import installed_backends
+from dualarm_mpc.milp.solver import installed_backends
 
 
 def solve(backend, method, step, status, cost, cpu, constraints=900):
@@ -38,10 +38,10 @@ def test_the_summary_compares_like_with_like() -> None:
 
 @pytest.mark.parametrize("backend", installed_backends())
 def test_one_step_on_every_installed_backend(backend) -> None:
-    from dualarm_mpc.mld import State
-    from dualarm_mpc.scenario import load_scenario
-    from dualarm_mpc.sequential import predict_horizon
-    from dualarm_mpc.spec import specification
+    from dualarm_mpc.model.mld import State
+    from dualarm_mpc.model.scenario import load_scenario
+    from dualarm_mpc.model.spec import specification
+    from dualarm_mpc.planning.sequential import predict_horizon
 
     s = load_scenario("table1_vd", {"m_o": 1, "n_o": 1, "rule": 2, "delivery": "reach"})
     spec = specification(s, [0])

@@ -1,4 +1,4 @@
-"""Tests for dualarm_mpc.spec's check of user rules: every rule the planner cannot use is refused
+"""Tests for model.spec's check of user rules: every rule the planner cannot use is refused
 with its field before any solve (issue 7), the paper's rules and sound user rules pass."""
 
 from __future__ import annotations
@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from strategies import formulas
 
-from dualarm_mpc.ltl import eta, nnf, theta
-from dualarm_mpc.scenario import ScenarioError, load_scenario
-from dualarm_mpc.spec import MAX_RULE_INSTANCES, negated_atoms, rule_formulas, specification
+from dualarm_mpc.logic.ltl import eta, nnf, theta
+from dualarm_mpc.model.scenario import ScenarioError, load_scenario
+from dualarm_mpc.model.spec import MAX_RULE_INSTANCES, negated_atoms, rule_formulas, specification
 
 
 def _rules(rules: list[str], **overrides):

@@ -13,12 +13,12 @@ from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
 
-from dualarm_mpc.mld import State
-from dualarm_mpc.palette import goal_colour
-from dualarm_mpc.plan import TimedTrajectory, Trajectory
-from dualarm_mpc.resources import ROBOT_URL, models_dir, package_map
-from dualarm_mpc.scenario import ObjectSpec, Scenario, Table, Task, load_scenario
-from dualarm_mpc.station import AddControlStack, AddStation, Station
+from dualarm_mpc.base.palette import goal_colour
+from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.plan import TimedTrajectory, Trajectory
+from dualarm_mpc.model.scenario import ObjectSpec, Scenario, Table, Task, load_scenario
+from dualarm_mpc.sim.resources import ROBOT_URL, models_dir, package_map
+from dualarm_mpc.sim.station import AddControlStack, AddStation, Station
 from dualarm_mpc.systems.clearance import Clearance
 from dualarm_mpc.systems.controller import (
     GAP_SLACK,
@@ -591,8 +591,8 @@ def test_the_closed_loop_in_lockstep_applies_each_plan_one_latency_after_its_rep
     over ``solver.replan_latency_s`` later (Δt = 1 s, or less), not before: until then the plan
     in force is the initial one (no step) and the hands hold still; from then on they follow
     the new plan. The summary JSON carries no wall-clock figure."""
-    from dualarm_mpc.closed_loop import simulate
-    from dualarm_mpc.scenario import Robot, apply_overrides
+    from dualarm_mpc.model.scenario import Robot, apply_overrides
+    from dualarm_mpc.sim.closed_loop import simulate
 
     s = Scenario(name="short", robot=Robot(workspace=[-0.9, 0.9, -0.3, 0.9], max_speed=0.2,
                                            max_force=0.1),

@@ -27,10 +27,10 @@ try:
 except ImportError:  # the ``test`` extra is not installed
     webdriver = None
 
-from dualarm_mpc import recording
-from dualarm_mpc.cli import main
-from dualarm_mpc.closed_loop import simulate
-from dualarm_mpc.scenario import load_scenario
+from dualarm_mpc.cli.app import main
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.sim import recording
+from dualarm_mpc.sim.closed_loop import simulate
 
 pytestmark = pytest.mark.slow  # records a run and opens it in Chromium
 

@@ -1,6 +1,6 @@
 """Interpolator: samples a timed plan into hand references and grasp commands at time t.
 
-The plan is a :class:`~dualarm_mpc.plan.TimedTrajectory`: step k of its trajectory happens at
+The plan is a :class:`~dualarm_mpc.model.plan.TimedTrajectory`: step k of its trajectory happens at
 ``t_k = t0 + k·dt``. In the plane each hand follows the cubic Hermite spline through the plan's
 positions and velocities at the steps (with one exception at releases, below). Its height
 follows a separate profile:
@@ -43,8 +43,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.plan import TimedTrajectory, Trajectory, empty_plan, sample_grasp
-from dualarm_mpc.plan import step_at as _step
+from dualarm_mpc.model.plan import TimedTrajectory, Trajectory, empty_plan, sample_grasp
+from dualarm_mpc.model.plan import step_at as _step
 
 TRAVEL_HEIGHT = 0.10  # hand height above the table when it holds nothing (m)
 
@@ -168,7 +168,7 @@ class Interpolator(LeafSystem):
         - hand_reference
         - grasp_command
 
-    ``plan`` is abstract-valued: a :class:`~dualarm_mpc.plan.TimedTrajectory`.
+    ``plan`` is abstract-valued: a :class:`~dualarm_mpc.model.plan.TimedTrajectory`.
     ``hand_reference`` (12): per arm i = 0 (right), 1 (left) the block [x, y, z, vx, vy, vz] at
     ``6i``. ``grasp_command`` (2N): η_ij of the step in force, row-major, index ``i·N + j``.
     Both outputs are pure functions of the time and the plan (no state, no solver).

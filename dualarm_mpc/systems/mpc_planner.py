@@ -1,11 +1,11 @@
 """MPC planner: the MPC core (``mpc.py``) inside the Diagram, replanning every Δt.
 
 A thin LeafSystem: a periodic unrestricted update (every Δt from t = 0) reads the measured state
-and the goals from its input ports, calls :meth:`dualarm_mpc.mpc.Replanner.step`, and keeps the
-new :class:`~dualarm_mpc.mpc.MpcState` and the replan's record in its abstract state. The new
-state takes over ``solver.replan_latency_s`` of simulated time after the replan (0 by default:
-at once; at most Δt), held until then as the pending state; the plan in force meanwhile is the
-previous one. The output ports only read that state: the plan in
+and the goals from its input ports, calls :meth:`dualarm_mpc.planning.mpc.Replanner.step`, and keeps
+the new :class:`~dualarm_mpc.planning.mpc.MpcState` and the replan's record in its abstract state.
+The new state takes over ``solver.replan_latency_s`` of simulated time after the replan (0 by
+default: at once; at most Δt), held until then as the pending state; the plan in force meanwhile is
+the previous one. The output ports only read that state: the plan in
 force, and the last replan (the closed loop records every one of them; the log is not kept in the
 state). The state holds values only: a search that runs on (real time) is the Replanner's.
 """
@@ -15,9 +15,9 @@ from __future__ import annotations
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.mld import State
-from dualarm_mpc.mpc import MpcState, Replan, Replanner, Solve
-from dualarm_mpc.scenario import Scenario
+from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.planning.mpc import MpcState, Replan, Replanner, Solve
 
 __all__ = ["MpcPlanner", "MpcState", "Replan"]
 
@@ -35,12 +35,12 @@ class MpcPlanner(LeafSystem):
         - plan
         - replan
 
-    ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.mld.State` as
-    :meth:`~dualarm_mpc.mld.State.vector` lays it out (the StateEstimator's output). ``goals``
+    ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.model.mld.State` as
+    :meth:`~dualarm_mpc.model.mld.State.vector` lays it out (the StateEstimator's output). ``goals``
     (abstract): dict goal name → box [xmin, xmax, ymin, ymax], read at every replan (a moved goal
-    counts from the next one). ``plan``: the :class:`~dualarm_mpc.plan.TimedTrajectory` in force
-    (abstract). ``replan``: the last replan's :class:`~dualarm_mpc.mpc.Replan` (abstract; None
-    before the first).
+    counts from the next one). ``plan``: the :class:`~dualarm_mpc.model.plan.TimedTrajectory` in
+    force (abstract). ``replan``: the last replan's :class:`~dualarm_mpc.planning.mpc.Replan`
+    (abstract; None before the first).
     ``solve`` replaces one horizon's solve (``sequential.solve_horizon``), e.g. to inject failures.
     """
 

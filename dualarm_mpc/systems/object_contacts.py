@@ -17,7 +17,7 @@ from pydrake.multibody.plant import ContactResults, MultibodyPlant
 from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.mld import REST_SPEED
+from dualarm_mpc.model.mld import REST_SPEED
 from dualarm_mpc.systems.clearance import CLEARANCE_PERIOD_S
 
 

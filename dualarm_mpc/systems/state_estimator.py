@@ -1,7 +1,7 @@
 """State estimator: reads the plant into the planner's measured state vector (planar x, y only).
 
 The "estimate" is exact (the simulated plant is observed perfectly); the layout is
-:meth:`dualarm_mpc.mld.State.vector`'s.
+:meth:`dualarm_mpc.model.mld.State.vector`'s.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.tree import RigidBody
 from pydrake.systems.framework import LeafSystem
 
-from dualarm_mpc.mld import State
+from dualarm_mpc.model.mld import State
 
 
 class StateEstimator(LeafSystem):
@@ -34,8 +34,8 @@ class StateEstimator(LeafSystem):
     ``body_poses`` / ``body_spatial_velocities``: the plant's outputs of the same names (the
     plant's own kinematics, shared with the Gripper; no scratch context is needed).
     ``grasp`` (2N): the Gripper's ``grasp`` output.
-    ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.mld.State` as
-    :meth:`~dualarm_mpc.mld.State.vector` lays it out (hand_pos, hand_vel, object_pos,
+    ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.model.mld.State` as
+    :meth:`~dualarm_mpc.model.mld.State.vector` lays it out (hand_pos, hand_vel, object_pos,
     object_vel, grasp); hand i = 0 is the right hand, 1 the left, measured at the end-effector
     body's origin.
     """

@@ -1,0 +1,1 @@
+"""LTLf: the formula tree, its text syntax and the independent evaluator (paper §III-D)."""

@@ -1,0 +1,2 @@
+"""Planning a task: sequential transportation (Algorithm 1), the consistency check, the
+receding-horizon replanner."""

@@ -1,0 +1,478 @@
+"""Planning: predictT, the horizon of a step, and sequential transportation (Algorithm 1).
+
+``plan_step`` finds a step's shortest feasible horizon and its optimum there — by the skeleton
+search (``search.py``) or the monolithic MILP (``horizon.py``) — and ``plan`` repeats steps
+until every object rests in its goal.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from dualarm_mpc.milp.horizon import HorizonProgram, StepResult, solve_options, solve_step
+from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.model.mld import Model, Rect, State, delivered_objects, in_goal, reachability
+from dualarm_mpc.model.plan import Plan, Segment, Trajectory
+from dualarm_mpc.model.route import horizon_bound
+from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.spec import Specification, rule_formulas, specification, with_no_throw
+from dualarm_mpc.search.relaxations import Key
+from dualarm_mpc.search.skeleton import horizon_has_plan, horizon_ruled_out, search_step
+from dualarm_mpc.search.subprograms import satisfies
+
+# Seconds a step may go without a plan before the largest horizon is checked (plan_step): the
+# check costs up to CAP_CHECK_TIME_S, wasted when the step has a plan, so only a step that has
+# already spent several times that is checked.
+CHECK_CAP_AFTER_S = 10.0
+CAP_CHECK_TIME_S = 3.0  # the whole of that check
+# The witness policy (below_witness): the step's budget after its witness, as a share of the
+# per-horizon time limit; the first round's slice of it for each horizon below T₁; and the
+# least time a horizon is given (less decides nothing).
+STEP_BUDGET_SHARE = 1 / 3
+FIRST_SLICE_SHARE = 1 / 8
+MIN_HORIZON_TIME_S = 1.0
+# The second prover (solver.prover, cpsat.Prover) takes the horizons the search has left
+# undecided, beside the search's next ones: its first slice on each, as a share of the time
+# limit (under the witness policy, the search's first slice).
+PROVER_FIRST_SLICE_SHARE = 1 / 16
+
+
+class PlanningError(RuntimeError):
+    """No plan was found; the message says why (e.g. which rules conflict). ``partial`` holds
+    the steps completed before (a partial :class:`Plan`), if any. ``proven``: the step has no
+    plan at all (every horizon up to the cap proven infeasible); otherwise the planner ran out
+    of time or stalled, which decides nothing."""
+
+    def __init__(self, message: str, partial: Plan | None = None, proven: bool = False) -> None:
+        super().__init__(message)
+        self.partial = partial
+        self.proven = proven
+
+
+@dataclass(frozen=True)
+class HorizonTried:
+    """One horizon the planner tried: the ``step``-th sequential step (from 1), the state it
+    starts from, its specification and what the solve of that horizon gave."""
+
+    step: int
+    state: State
+    spec: Specification
+    result: StepResult
+
+
+class Interrupted(Exception):
+    """The step's solves were stopped through ``SolveOptions.interrupt`` (e.g. Ctrl-C)."""
+
+
+def _stop_if_asked(options: SolveOptions | None) -> None:
+    if options is not None and options.interrupt is not None and options.interrupt.is_set():
+        raise Interrupted
+
+
+def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
+                  options: SolveOptions | None = None, start=None,
+                  below: dict[Key, StepResult] | None = None,
+                  incumbent: StepResult | None = None) -> StepResult:
+    """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
+    the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
+    is a MIP start for the monolithic MILP (:func:`horizon.solve_step`); ``below`` carries the
+    search's relaxations from one horizon to the next, and ``incumbent`` is a plan of the
+    horizon to start the search's optimisation from (:func:`search.search_step`)."""
+    if scenario.solver.search == "monolithic":
+        return solve_step(scenario, state, spec, horizon, options, start)
+    return search_step(scenario, state, spec, horizon, options, below, incumbent)
+
+
+def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> int:
+    """predictT: the smallest horizon the reachability bound does not rule out (§IV-C.2) — the
+    m_o-th smallest step at which an object of the step can first be in its goal — or, where
+    no-throw (18) holds for every object of the step, the route bound of the hands
+    (:func:`route.horizon_bound`) if larger: the horizons below either have no plan."""
+    objects = list(spec.objects)
+    model = Model.from_scenario(scenario, objects)
+    cap = scenario.solver.max_horizon
+    local = state.select(objects)
+    reach = reachability(model, local, cap)
+    first = np.sort(reach.first_goal)
+    no_throw = frozenset(objects.index(j) for j in spec.released_only_in_goal())
+    routes = horizon_bound(model, local, spec.m_o, no_throw, cap)
+    return int(min(max(first[spec.m_o - 1], routes, 1), cap))
+
+
+def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> list[int]:
+    """Algorithm 1, line 2: the n_o remaining objects cheapest to deliver, by the distance from
+    the nearer hand to the object plus the object's distance to its goal box."""
+    def estimate(j: int) -> float:
+        p = state.object_pos[j]
+        goal = Rect.of(scenario.task.goals[scenario.task.objects[j].goal])
+        to_goal = np.linalg.norm(np.maximum(goal.lo - p, 0) + np.maximum(p - goal.hi, 0))
+        to_hand = np.linalg.norm(state.hand_pos - p, axis=1).min()
+        return float(to_hand + to_goal)
+
+    return sorted(sorted(remaining, key=lambda j: (estimate(j), j))[: scenario.task.n_o])
+
+
+def plan_step(scenario: Scenario, state: State, spec: Specification,
+              options: SolveOptions | None = None,
+              on_try: Callable[[StepResult], None] | None = None) -> tuple[StepResult, float]:
+    """Lines 4–6 of Algorithm 1 by the scenario's ``solver.horizons`` policy. Returns the
+    result (with :attr:`StepResult.minimal` and the witness's cost and horizon) and the step's
+    total solve time (wall time, everything included).
+
+    ``exact`` (:func:`first_plan`): from predictT, raise T until a plan is found. ``witness``
+    (the skeleton search's default): first the no-throw witness (:func:`witness`), then
+    Algorithm 1 on the horizons below its T₁ within one budget for the step, its plan taken
+    where it is cheaper than the witness (:func:`below_witness`); the step's plan is never
+    worse than its witness."""
+    t0 = time.perf_counter()
+    found = None
+    if scenario.solver.horizons == "witness" and scenario.solver.search == "skeleton":
+        found = witness(scenario, state, spec, options)
+    if found is None:
+        res = first_plan(scenario, state, spec, options, on_try)
+    else:
+        res = below_witness(scenario, state, spec, found, options, on_try)
+    return res, time.perf_counter() - t0
+
+
+def witness(scenario: Scenario, state: State, spec: Specification,
+            options: SolveOptions | None) -> StepResult | None:
+    """The step's witness: the plan of ``spec`` with no-throw (18) for every object
+    (:func:`spec.with_no_throw`, a restriction: quick where ``spec`` allows relays), at its own
+    first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by the evaluator
+    (:func:`subprograms.satisfies`); None where ``spec`` has no-throw already, or the restriction
+    has no plan or none in time."""
+    restricted = with_no_throw(spec)
+    if restricted is None:
+        return None
+    objects = list(spec.objects)
+    model = Model.from_scenario(scenario, objects)
+    cap = scenario.solver.max_horizon
+    if horizon_bound(model, state.select(objects), spec.m_o, frozenset(range(len(objects))),
+                     cap) > cap:
+        return None  # no route delivers m_o objects without a throw (§V-C's goals)
+    # without the second prover: the witness's own horizons need no proofs
+    alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
+                                                                     prover="none"))
+    try:
+        res = first_plan(alone, state, restricted, options)
+    except PlanningError:
+        return None
+    if not satisfies(scenario, state, spec, model, res.trajectory):
+        return None
+    # Its solver values are those of the restriction's program (other LTL columns): a MIP start
+    # from its forces and grasps instead (subprograms._start).
+    return dataclasses.replace(res, solution=None, variables=None)
+
+
+def below_witness(scenario: Scenario, state: State, spec: Specification, found: StepResult,
+                  options: SolveOptions | None,
+                  on_try: Callable[[StepResult], None] | None = None) -> StepResult:
+    """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
+    predictT up to T₁ are searched for the first with a plan, as :func:`first_plan` does (T₁
+    has one: the witness, the search's first incumbent there), and the step's plan is the
+    cheaper of its optimum and the witness. What is left of the budget then goes to the step's
+    plan: where the first plan costs more than the witness, T₁ is searched from the witness
+    for a cheaper plan or the proof that there is none; else the first plan's horizon, from it,
+    where the plan is not yet proven optimal.
+
+    All of it within one budget for the step, ``STEP_BUDGET_SHARE`` of
+    ``solver.time_limit_s``, in rounds: each horizon still undecided gets ``FIRST_SLICE_SHARE``
+    of the budget, four times as much in the next round, so that one hard horizon does not
+    take the time the others would be decided in. Beside the search, the second prover
+    (:func:`second_prover`) tries to prove the horizons below T₁ that the search has left
+    undecided to have no plan. The step's horizon is proven minimal (:attr:`StepResult.minimal`)
+    when every horizon below it was proven to have no plan, by either."""
+    options = options or solve_options(scenario)
+    budget = STEP_BUDGET_SHARE * options.time_limit_s
+    deadline = time.perf_counter() + budget
+    undecided = list(range(predict_horizon(scenario, state, spec), found.horizon + 1))
+    left_open: set[int] = set()  # the horizons the search has left undecided once
+    first = None  # the plan of the lowest horizon that has one
+    slice_s = FIRST_SLICE_SHARE * budget
+
+    def solve(T: int, o: SolveOptions, incumbent: StepResult | None) -> StepResult:
+        res = solve_horizon(scenario, state, spec, T, o, incumbent=incumbent)
+        _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
+        if on_try:
+            on_try(res)
+        return res
+
+    with second_prover(scenario, state, spec, options, slice_s, on_try) as prover:
+        while undecided:
+            for T in list(undecided):
+                undecided = [t for t in undecided if t not in prover.proofs()]
+                if T not in undecided:
+                    continue
+                _stop_if_asked(options)
+                left = deadline - time.perf_counter()
+                if left < MIN_HORIZON_TIME_S:
+                    break
+                limit = max(min(slice_s, left), MIN_HORIZON_TIME_S)
+                with prover.searching(T, dataclasses.replace(options, time_limit_s=limit)) as o:
+                    res = solve(T, o, found if T == found.horizon else None)
+                if res.status.has_solution:
+                    first = res
+                    undecided = [t for t in undecided if t < T]  # the higher ones matter no more
+                elif res.status is Status.INFEASIBLE:
+                    undecided.remove(T)
+                else:
+                    left_open.add(T)
+                prover.ask([t for t in undecided if t in left_open and t < found.horizon])
+                if first is res:
+                    break
+            if deadline - time.perf_counter() < MIN_HORIZON_TIME_S:
+                break
+            slice_s *= 4
+    proofs = prover.proofs()
+    undecided = [t for t in undecided if t not in proofs]
+    # What is left of the budget goes to the step's plan: T₁ searched again from the witness
+    # where the first plan costs more, else the first plan's horizon from it, not yet proven.
+    at_witness = None
+    left = deadline - time.perf_counter()
+    if first is not None and left >= MIN_HORIZON_TIME_S:
+        start = found if first.cost > found.cost else first
+        if start is found or first.status is not Status.OPTIMAL:
+            _stop_if_asked(options)
+            again = solve(start.horizon, dataclasses.replace(options, time_limit_s=left), start)
+            if again.status.has_solution and start is found:  # the witness or cheaper
+                at_witness = again
+            elif again.status.has_solution:
+                first = again
+    if first is not None and first.cost <= found.cost:
+        best = first  # T₁'s search, from the witness, is one of these
+    elif at_witness is not None and at_witness.status.has_solution:
+        best = at_witness  # the witness or cheaper, with the search's bound
+    else:  # the witness's own bound holds for the restriction only
+        best = dataclasses.replace(found, bound=0.0, gap=1.0 if found.cost > 0 else 0.0,
+                                   status=Status.FEASIBLE if found.cost > 0 else Status.OPTIMAL)
+    passed_over = (first.horizon, first.cost) if first is not None and \
+        first.horizon < best.horizon else None
+    shorter = tuple(t for t in undecided if t < best.horizon)
+    return dataclasses.replace(best, witness_cost=found.cost, witness_horizon=found.horizon,
+                               proofs=_shorter(proofs, best.horizon), undecided=shorter,
+                               passed_over=passed_over)
+
+
+def first_plan(scenario: Scenario, state: State, spec: Specification,
+               options: SolveOptions | None = None,
+               on_try: Callable[[StepResult], None] | None = None) -> StepResult:
+    """Lines 4–6 of Algorithm 1 as the paper: from predictT, raise T until a plan is found (an
+    infeasible or timed-out horizon counts as "not yet"; the result's ``minimal`` says whether
+    every one was proven infeasible: by the search, or by the second prover
+    (:func:`second_prover`), which works on the horizons the search left undecided beside its
+    next ones).
+
+    With the skeleton search and a specification whose feasibility is monotone in T
+    (:meth:`Specification.monotone_in_horizon`), once the step went ``CHECK_CAP_AFTER_S``
+    without a plan the largest one is checked by the search's relaxations alone
+    (:func:`search.horizon_ruled_out`, a few seconds at most): if they rule it out, no horizon
+    has a plan, and the conflict is diagnosed at once instead of after every horizon."""
+    t0 = time.perf_counter()
+    cap = scenario.solver.max_horizon
+    last = None
+    check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
+    below: dict[Key, StepResult] = {}  # the relaxations with a plan, from horizon to horizon
+    undecided: list[int] = []  # the horizons tried without a plan or a proof of none
+    options = options or solve_options(scenario)
+    first_slice = PROVER_FIRST_SLICE_SHARE * options.time_limit_s
+    with second_prover(scenario, state, spec, options, first_slice, on_try) as prover:
+        for T in range(predict_horizon(scenario, state, spec), cap + 1):
+            _stop_if_asked(options)
+            if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
+                check_cap = False  # once
+                if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S, options):
+                    raise PlanningError(diagnose(scenario, state, spec, None, options),
+                                        proven=True)
+            res = solve_horizon(scenario, state, spec, T, options, below=below)
+            _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
+            if on_try:
+                on_try(res)
+            last = res
+            if res.status.has_solution:
+                break
+            if res.status is not Status.INFEASIBLE:
+                undecided.append(T)
+                prover.ask(undecided)
+            if res.status is Status.ERROR:
+                break
+    proofs = prover.proofs()
+    undecided = [t for t in undecided if t not in proofs]
+    if last is not None and last.status.has_solution:
+        return dataclasses.replace(last, undecided=tuple(undecided),
+                                   proofs=_shorter(proofs, last.horizon))
+    raise PlanningError(diagnose(scenario, state, spec, last, options), proven=not undecided)
+
+
+@contextmanager
+def second_prover(scenario: Scenario, state: State, spec: Specification,
+                  options: SolveOptions, first_slice_s: float,
+                  on_try: Callable[[StepResult], None] | None = None) -> Iterator:
+    """The scenario's second prover (``solver.prover``) of the step's horizons, for the length
+    of a ``with``: :class:`cpsat.Prover` on the horizons' programs, each proof told to
+    ``on_try`` as an infeasible horizon at the end; or, with ``none``, one that proves nothing.
+    Never in a replan: ``mpc.py`` solves its horizons itself, in lockstep by counted work
+    alone."""
+    if scenario.solver.prover == "none":
+        yield _NoProver()
+        return
+    from dualarm_mpc.milp.cpsat import Prover
+
+    objects = list(spec.objects)
+    prover = Prover(lambda T: HorizonProgram(scenario, state, objects, T).standard_form(spec),
+                    options, first_slice_s=first_slice_s)
+    try:
+        yield prover
+    finally:
+        proofs = prover.close()
+    for T, proof in sorted(proofs.items()):
+        if on_try:
+            on_try(StepResult.no_plan(Status.INFEASIBLE, T, np.inf, proof.wall_time_s,
+                                      proof.binaries, proof.message))
+
+
+def _shorter(proofs: dict, horizon: int) -> tuple[int, ...]:
+    """The horizons proven below ``horizon``."""
+    return tuple(sorted(T for T in proofs if T < horizon))
+
+
+class _NoProver:
+    """``solver.prover: none``: proves nothing."""
+
+    def ask(self, horizons) -> None:
+        pass
+
+    @contextmanager
+    def searching(self, horizon: int, options: SolveOptions) -> Iterator[SolveOptions]:
+        yield options
+
+    def proofs(self) -> dict:
+        return {}
+
+
+def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepResult | None,
+             options: SolveOptions | None) -> str:
+    """Why no plan exists within the horizon cap: which rules, dropped, make the task feasible
+    (each decided at the cap: by the skeleton search's feasibility pass, or the monolithic MILP
+    stopped at its first solution)."""
+    T = scenario.solver.max_horizon
+    objects = [scenario.task.objects[j].name for j in spec.objects]
+    status = f" (last status: {last.status.value})" if last else ""
+    head = f"no plan delivering {spec.m_o} of {objects} within horizon {T}{status}"
+    options = options or solve_options(scenario)
+    quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s, 20.0),
+                                mip_rel_gap=1.0)
+
+    def feasible(rules) -> Status:
+        s = dataclasses.replace(spec, rules=tuple(rules))
+        if scenario.solver.search == "skeleton":
+            return horizon_has_plan(scenario, state, s, T, quick)
+        return solve_step(scenario, state, s, T, quick).status
+
+    alone = feasible([])
+    if alone is Status.INFEASIBLE:
+        clearance = scenario.task.object_clearance
+        apart = "" if clearance is None else f", objects {clearance:g} m apart (C1)"
+        return (f"{head}: the task alone is infeasible — the goals cannot be reached with "
+                f"|v| <= {scenario.robot.max_speed} and |u| <= {scenario.robot.max_force}"
+                f"{apart} from this state")
+    if not alone.has_solution:
+        return f"{head}: the solver could not decide the task alone within its time limit"
+    culprits = [name for name, f in spec.rules if not feasible([(name, f)]).has_solution]
+    if culprits:
+        return f"{head}: the task conflicts with rule(s) {', '.join(culprits)}"
+    names = ", ".join(n for n, _ in spec.rules)
+    return f"{head}: the rules {names} together conflict with the task"
+
+
+def embed_step(scenario: Scenario, state: State, objects: list[int],
+               local: Trajectory) -> Trajectory:
+    """The step's trajectory over all objects: those outside the step stay where they are."""
+    K1 = len(local.hand_pos)
+    n = scenario.n_objects
+    op = np.repeat(state.object_pos[None], K1, axis=0)
+    ov = np.zeros((K1, n, 2))
+    g = np.zeros((K1, 2, n), int)
+    op[:, objects] = local.object_pos
+    ov[:, objects] = local.object_vel
+    g[:, :, objects] = local.grasp
+    return Trajectory(local.hand_pos, local.hand_vel, local.force, op, ov, g)
+
+
+def transport(scenario: Scenario, options: SolveOptions | None = None,
+              progress: Callable[[Segment], None] | None = None,
+              on_try: Callable[[HorizonTried], None] | None = None) -> Plan:
+    """Algorithm 1 (sequential transportation): plan m_o objects at a time until every object
+    rests in its goal. ``progress`` hears of each step, ``on_try`` of each horizon tried.
+    Raises :class:`PlanningError` with the reason when a step has no plan; when
+    ``options.interrupt`` is set, returns the steps completed so far (``partial``)."""
+    state = State.initial(scenario)
+    rules = rule_formulas(scenario)
+    trajectory = Trajectory.still(state)
+    segments: list[Segment] = []
+    delivered_step: list[int | None] = [None] * scenario.n_objects
+    done = delivered_objects(scenario, state.object_pos, state.object_vel)
+    for j in np.flatnonzero(done):
+        delivered_step[j] = 0
+
+    def finish(partial: bool) -> Plan:
+        return Plan(
+            dt=scenario.robot.dt, rule=scenario.task.rule, delivery=scenario.task.delivery,
+            goals={k: list(v) for k, v in scenario.task.goals.items()},
+            objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
+                     for o in scenario.task.objects],
+            workspace=list(scenario.robot.workspace), trajectory=trajectory,
+            delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
+            partial=partial,
+        )
+
+    def tried(res: StepResult) -> None:  # within plan_step: of the step being planned
+        on_try(HorizonTried(len(segments) + 1, state, spec, res))
+
+    for _ in range(3 * scenario.n_objects):  # each step delivers >= 1 object unless stuck
+        remaining = [j for j in range(scenario.n_objects) if not done[j]]
+        if not remaining:
+            break
+        objects = select_objects(scenario, state, remaining)
+        spec = specification(scenario, objects, rules=rules)
+        cpu0 = time.process_time()
+        try:
+            res, total = plan_step(scenario, state, spec, options, on_try and tried)
+        except Interrupted:
+            return finish(partial=True)
+        except PlanningError as err:
+            raise PlanningError(str(err), finish(partial=True), err.proven) from None
+        cpu = time.process_time() - cpu0
+        step = embed_step(scenario, state, objects, res.trajectory)
+        offset = trajectory.steps
+        trajectory = trajectory.then(step)
+        state = State.last(step)
+        now = delivered_objects(scenario, state.object_pos, state.object_vel)
+        newly = [j for j in objects if now[j] and not done[j]]
+        for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
+            goal = scenario.task.goals[scenario.task.objects[j].goal]
+            inside = np.flatnonzero(in_goal(step.object_pos[:, j], goal))
+            delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
+        done = done | now
+        seg = Segment(objects=objects, delivered=newly, horizon=res.horizon,
+                      status=res.status.value, solve_time_s=total, cost=res.cost,
+                      cpu_time_s=cpu, binaries=res.binaries, gap=float(res.gap),
+                      horizon_proven_minimal=res.minimal,
+                      witness_cost=res.witness_cost, witness_horizon=res.witness_horizon,
+                      horizons_proven_by_cpsat=list(res.proofs),
+                      horizons_undecided=list(res.undecided),
+                      shorter_plan=None if res.passed_over is None else list(res.passed_over))
+        segments.append(seg)
+        if progress:
+            progress(seg)
+    if not done.all():
+        missing = [scenario.task.objects[j].name for j in np.flatnonzero(~done)]
+        raise PlanningError(f"sequential transportation stalled: {missing} not delivered",
+                            finish(partial=True))
+    return finish(partial=False)

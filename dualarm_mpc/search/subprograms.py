@@ -1,0 +1,274 @@
+"""The narrowed programs of one horizon that the skeleton search solves (docs/search.md).
+
+A *skeleton node* (D, h) fixes the m_o objects D whose delivery satisfies φ_task (13) and, for
+each j ∈ D, the hand h_j that may hold it (arm 1, arm 2, or ``BOTH`` for a hand-over). Every
+program of the search is the horizon's MILP (``horizon.HorizonProgram``: eqs. 1, 7–11, 14–16,
+cost 17) narrowed: η_ij(k ≥ 1) = 0 outside the pairs it allows, a specification restricted to
+some objects, one hand costed, the grasps of a plan fixed, or one order in which a hand delivers
+its share ("Orders (no-throw)"). :class:`StepPrograms` builds and solves them under the search's
+clock: the horizon's deadline, the feasibility pass's time slice where it gives one, and the
+options' stop request and work budget. :func:`satisfies` is the check every plan put together
+from parts passes: re-simulation and direct LTL evaluation (``evaluate.py``, which shares no code
+with the encoder).
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from dualarm_mpc.logic.evaluate import evaluate
+from dualarm_mpc.logic.ltl import Atom
+from dualarm_mpc.milp.horizon import HorizonProgram, StepResult
+from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.model.mld import (
+    N_HANDS,
+    Model,
+    Rect,
+    State,
+    crowding,
+    in_goal,
+    replay,
+    standing,
+    violations,
+)
+from dualarm_mpc.model.plan import Trajectory
+from dualarm_mpc.model.route import Order, orders, route_steps
+from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.spec import Specification
+
+BOTH = 2  # h_j: either hand may hold object j (a hand-over)
+
+
+@dataclass(frozen=True)
+class Node:
+    """A skeleton node (D, h) (docs/search.md, "Skeleton nodes")."""
+
+    targets: tuple[int, ...]  # D, the objects it delivers (scenario indices)
+    hands: tuple[int, ...]  # h_j for j in D: 0 (arm 1), 1 (arm 2) or BOTH
+    free: frozenset[int] = frozenset()  # outside D and not provably untouchable
+
+    def share(self, i: int) -> tuple[int, ...]:
+        """S_i: the objects of D that hand i alone delivers."""
+        return tuple(j for j, h in zip(self.targets, self.hands, strict=True) if h == i)
+
+    @property
+    def handed_over(self) -> tuple[int, ...]:
+        return self.share(BOTH)
+
+
+class StepPrograms:
+    """The programs of one horizon of one sequential step, narrowed as the search asks and
+    solved by ``options.backend`` under the search's clock. ``pool``: the workers that solve
+    independent programs at once (HiGHS releases the GIL)."""
+
+    def __init__(self, scenario: Scenario, state: State, spec: Specification, horizon: int,
+                 options: SolveOptions, pool: ThreadPoolExecutor | None = None) -> None:
+        self.scenario, self.state, self.spec, self.horizon = scenario, state, spec, horizon
+        self.options, self.pool = options, pool
+        self.deadline = time.perf_counter() + options.time_limit_s
+        self.program = HorizonProgram(scenario, state, list(spec.objects), horizon)
+        self.model = self.program.model
+        self.local = {j: n for n, j in enumerate(spec.objects)}
+        local_grasp = state.grasp[:, list(spec.objects)]
+        self.held = [j for n, j in enumerate(spec.objects) if local_grasp[:, n].any()]
+        self.no_throw = frozenset(self.local[j] for j in spec.released_only_in_goal())
+
+    def stopped(self) -> bool:
+        """Out of time or work (``options.work``: read here only, where no worker runs, so
+        the search stops at the same place on any machine), or asked to stop
+        (``options.interrupt``)."""
+        stop, work = self.options.interrupt, self.options.work
+        return (time.perf_counter() > self.deadline or (stop is not None and stop.is_set())
+                or (work is not None and work.spent()))
+
+    def map(self, f, items: list) -> list:
+        """``f`` over ``items``, on every worker at once."""
+        if len(items) > 1 and self.pool is not None:
+            return list(self.pool.map(f, items))
+        return [f(item) for item in items]
+
+    def solve(self, spec: Specification, allowed: np.ndarray, hands=(0, 1), grasp=None,
+              start: StepResult | None = None, floor=None, orders=(), exact: bool = True,
+              cutoff: float = np.inf, relaxed: bool = False, apart: frozenset = frozenset(),
+              slice_s: float = np.inf) -> StepResult:
+        """One program, MIP-started from ``start``'s plan if given; ``exact`` false stops at
+        its first solution (a feasibility probe). With a ``cutoff``, "infeasible" means no plan
+        cheaper than it (``SolveOptions.cutoff``). ``relaxed``: a relaxation, whose objects
+        held still may move in the nodes it bounds (``HorizonProgram.standard_form``).
+        ``apart``, and ``start``'s: pairs whose (C1)–(C2) rows it likely needs. It may take
+        ``slice_s`` at most, and never past the horizon's deadline."""
+        remaining = max(min(self.deadline - time.perf_counter(), slice_s), 1e-3)
+        options = replace(self.options, time_limit_s=remaining, small_trees=True, cutoff=cutoff)
+        if not exact:
+            options = replace(options, mip_rel_gap=1.0)
+        res = self.program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
+                                 grasp=grasp, floor=floor, orders=orders, relaxed=relaxed,
+                                 apart=apart if start is None else apart | start.apart)
+        if self.options.work is not None:
+            self.options.work.spend()
+        if res.status is Status.INFEASIBLE and np.isfinite(cutoff):
+            return replace(res, bound=cutoff)  # nothing cheaper than the cutoff: its bound
+        return res
+
+    def by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
+                 start: StepResult | None = None, floor=None, exact: bool = True,
+                 cutoff: float = np.inf, spread: bool = False, relaxed: bool = False,
+                 slice_s: float = np.inf) -> StepResult:
+        """A program split by the order in which each hand delivers its share (``shares``,
+        one per hand; see :meth:`orders`): its optimum is the best of the parts', each part
+        solved against the best plan of those before (a cutoff), and a probe stops at the
+        first part with a plan. ``start`` starts the part its plan follows. ``spread``: the
+        parts of an exact solve run on every worker at once, each against ``cutoff`` alone
+        (for a program solved while the other worker would idle)."""
+        split = [o for o in (self.orders(i, share) for i, share in shares) if o is not None]
+        if not split:
+            return self.solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
+                              cutoff=cutoff, relaxed=relaxed, slice_s=slice_s)
+        parts = list(itertools.product(*split))  # the shortest routes first
+
+        def solve(part, exact=exact, cutoff=cutoff):
+            return self.solve(spec, allowed, hands, floor=floor, orders=part, exact=exact,
+                              start=start if all(_follows(start, o) for o in part) else None,
+                              cutoff=cutoff, relaxed=relaxed, slice_s=slice_s,
+                              apart=frozenset() if start is None else start.apart)
+
+        if spread and exact:
+            return best_part(self.map(solve, parts))
+        results = []
+        for part in parts:
+            best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
+            res = solve(part, cutoff=best if exact else np.inf)
+            if not exact and res.status.has_solution:
+                return res
+            results.append(res)
+        return best_part(results)
+
+    def orders(self, i: int, share: tuple[int, ...]) -> list[Order] | None:
+        """The orders in which hand i can deliver ``share`` within the horizon
+        (``route.orders``), where no-throw (18) holds for all of its objects, at rest and not
+        held: every plan then delivers them one after another, and the program of each order
+        is much tighter than the whole (no object is grabbed, or in its goal, before its
+        order's route allows; for one object, that alone). None where the split does not
+        apply."""
+        local = tuple(self.local[j] for j in share)
+        if not share or not set(local) <= self.no_throw or not self.route(i, share):
+            return None
+        return orders(self.model, self.program.local_state, i, local, self.no_throw,
+                      self.horizon)
+
+    def route(self, i: int, share: tuple[int, ...]) -> int:
+        """The route bound (``route.py``), counted up to the horizon: more steps than the
+        horizon and hand i cannot deliver ``share`` in it, whatever the rest of the plan does."""
+        return route_steps(self.model, self.program.local_state, i,
+                           tuple(self.local[j] for j in share), self.no_throw, self.horizon)
+
+    def mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
+        """The pairs (hand, object) whose η may be 1 after the first step."""
+        allowed = np.zeros((N_HANDS, len(self.spec.objects)), bool)
+        for i, j in pairs:
+            allowed[i, self.local[j]] = True
+        return allowed
+
+    def replay(self, force: np.ndarray, grasp: np.ndarray) -> Trajectory:
+        """The step's objects and hands under ``force`` and ``grasp`` (``mld.replay``)."""
+        return replay(self.model, self.program.local_state, force, grasp)
+
+    def satisfies(self, traj: Trajectory, spec: Specification) -> bool:
+        return satisfies(self.scenario, self.state, spec, self.model, traj)
+
+    def node_spec(self, node: Node) -> Specification:
+        """φ_task replaced by "every j ∈ D delivered" (docs/search.md, "Skeleton nodes")."""
+        return replace(self.spec, targets=node.targets, m_o=len(node.targets),
+                       task_form="counting")
+
+    def joint(self, node: Node, floor: np.ndarray, start: StepResult | None = None,
+              exact: bool = True, cutoff: float = np.inf, spread: bool = False,
+              slice_s: float = np.inf) -> StepResult:
+        """The node's own program: the monolithic one restricted to the skeleton, with each
+        hand's cost at least its ``floor`` (the proven bounds of its share); with a ``cutoff``,
+        "infeasible" means no plan cheaper than it."""
+        pairs = [(i, j) for j, h in zip(node.targets, node.hands, strict=True)
+                 for i in range(N_HANDS) if h in (i, BOTH)]
+        pairs += [(i, j) for j in node.free for i in range(N_HANDS)]
+        return self.by_order(self.node_spec(node), self.mask(pairs),
+                             [(i, node.share(i)) for i in range(N_HANDS)], start=start,
+                             floor=floor, exact=exact, cutoff=cutoff, spread=spread,
+                             slice_s=slice_s)
+
+
+def satisfies(scenario: Scenario, state: State, spec: Specification, model: Model,
+              traj: Trajectory) -> bool:
+    """Whether ``traj`` (over ``spec``'s objects, from ``state``) keeps the model's
+    constraints (the objects' spacing, (C1)–(C3), included), ends at rest and satisfies ``spec``
+    (evaluated on its trace by ``evaluate.py``, which shares no code with the encoder)."""
+    if violations(model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
+        return False
+    if crowding(model, traj, *standing(state, list(spec.objects), model.dt)):
+        return False
+    local = {j: n for n, j in enumerate(spec.objects)}
+    goals = [Rect.of(scenario.task.goals[o.goal]) for o in scenario.task.objects]
+
+    def value(atom: Atom, k: int) -> bool:
+        n = local.get(atom.index[-1] - 1)
+        if atom.name == "eta":
+            return False if n is None else bool(traj.grasp[k, atom.index[0] - 1, n])
+        if n is None:
+            return bool(in_goal(state.object_pos[atom.index[0] - 1], goals[atom.index[0] - 1]))
+        return bool(in_goal(traj.object_pos[k, n], model.goals[n]))
+
+    return evaluate(spec.formula(), value, len(traj.force))
+
+
+INFEASIBLE = StepResult.no_plan(Status.INFEASIBLE, 0, np.inf)  # proven without a solve
+
+
+def best_part(results: list[StepResult]) -> StepResult:
+    """The best of a program's parts (which together cover its plans): its solution, and the
+    least of their bounds; optimal when every part is closed."""
+    bound = min((lower_bound(r) for r in results), default=np.inf)
+    found = [r for r in results if r.status.has_solution]
+    if not found:
+        undecided = [r for r in results if r.status is not Status.INFEASIBLE]
+        return replace(undecided[0] if undecided else INFEASIBLE, bound=bound)
+    best = min(found, key=lambda r: r.cost)
+    closed = all(r.status in (Status.OPTIMAL, Status.INFEASIBLE) for r in results)
+    return replace(best, status=Status.OPTIMAL if closed else Status.FEASIBLE,
+                   bound=min(bound, best.cost))
+
+
+def lower_bound(res: StepResult) -> float:
+    """A proven lower bound of a program's cost: +inf when it is infeasible, its cutoff when it
+    has nothing cheaper."""
+    if res.status is Status.INFEASIBLE:
+        return res.bound
+    if res.status is Status.OPTIMAL:
+        return max(min(res.bound, res.cost), 0.0) if np.isfinite(res.bound) else res.cost
+    return max(res.bound, 0.0) if np.isfinite(res.bound) else 0.0
+
+
+def _start(plan: StepResult | None):
+    """A MIP start from ``plan``: its solver values, or else (a plan re-simulated, not solved)
+    its forces and grasps, which the solver completes."""
+    if plan is None or plan.trajectory is None:
+        return None
+    if plan.solution is not None:
+        return lambda x, v=plan.solution: v
+    traj = plan.trajectory
+    return lambda x: (np.concatenate([x.force.ravel(), x.eta.ravel()]),
+                      np.concatenate([traj.force.ravel(), traj.grasp.ravel()]).astype(float))
+
+
+def _follows(plan: StepResult | None, order: Order) -> bool:
+    """Whether ``plan``'s hand first grabs the objects of ``order`` in its order."""
+    if plan is None or plan.trajectory is None:
+        return False
+    grasp = plan.trajectory.grasp[1:, order.hand]
+    first = [int(np.argmax(grasp[:, n])) if grasp[:, n].any() else len(grasp)
+             for n in order.objects]
+    return first == sorted(first)

@@ -1,0 +1,324 @@
+"""Closed-loop simulation of a scenario: the Diagram run in time, environment events, summary JSON.
+
+Progress is reported per replan (sim time, objects delivered, solve wall time). The simulation
+advances from one environment event to the next (``AdvanceTo``) and applies each between the
+segments; a ``Simulator`` monitor only looks: it records the replans and ends the run when every
+object rests (plus a short settle) after the planner is done; or the run stops at ``duration``.
+
+Lockstep (the default, docs/drake.md): the same scenario gives the same run, summary and replay
+on any machine under any load. The wall-clock figures (``Summary.wall_clock``) depend on the
+machine; the summary JSON carries them only in real time (``solver.realtime``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydrake.geometry import Meshcat
+from pydrake.systems.analysis import Simulator, SimulatorStatus
+from pydrake.systems.framework import Context, EventStatus
+
+from dualarm_mpc.base import outputs
+from dualarm_mpc.model.mld import REST_SPEED, at_rest, delivered_objects
+from dualarm_mpc.model.scenario import Event, Scenario, ScenarioError
+from dualarm_mpc.planning.mpc import Replan, Solve
+from dualarm_mpc.sim import recording
+from dualarm_mpc.sim.diagram import DualArm, MakeDiagram
+from dualarm_mpc.sim.disturbances import Disturbance, World, knock, move_goal
+
+# On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
+# object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
+# slots one object in ten was knocked short of its goal, beyond reach); and objects have extent:
+# one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C3); without,
+# the boxes of `make demo` touched in 4 pairs, a dragged one shoving another 8 cm). 1 cm is what
+# the slots leave between neighbours (2·goal_margin − object_size).
+ON_ROBOT = {"delivery": "rest", "goal_margin": 0.03, "goal_slots": True, "object_clearance": 0.01}
+
+
+def on_robot(scenario: Scenario) -> dict:
+    """The overrides that make ``scenario`` fit for the robot: ``ON_ROBOT``, and random objects
+    drawn at least a box apart (plus 2 cm), since physical boxes cannot overlap."""
+    extra = {}
+    if scenario.task.random_objects is not None:
+        extra["random_objects"] = {"min_separation": scenario.table.object_size + 0.02}
+    return {**ON_ROBOT, **extra}
+SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
+
+
+@dataclass(frozen=True)
+class Summary:
+    mode: str  # "lockstep" or "realtime" (``solver.realtime``)
+    replan_latency_s: float  # simulated time from a replan to its plan in force
+    goals: dict[str, list[float]]
+    objects: list[dict]
+    final_object_pos: list[list[float]]
+    final_object_speed: list[float]
+    delivered_time_s: list[float | None]
+    replans: list[dict]
+    sim_time_s: float
+    all_delivered: bool
+    events: list[dict]
+    # Real time: replans that reached their wall-time budget, the robot following the plan in
+    # force (or waiting at rest) while the search went on. Their times, as in ``replans``.
+    replans_over_budget: list[float] = field(default_factory=list)
+    interrupted: bool = False  # stopped by Ctrl-C at ``sim_time_s``
+    # The least distance between the two arms' collision geometries over the run, sampled every
+    # 20 ms by SceneGraph (systems/clearance.py); None if the run took no sample.
+    min_arm_clearance_m: float | None = None
+    # The deepest any hand geometry (tip, quill) reached into any object's box over the run,
+    # sampled as ``min_arm_clearance_m`` (0 if none ever did); None if the run took no sample.
+    max_hand_penetration_m: float | None = None
+    # Pairs of objects that touched while one of them moved (a box shoved by another), from the
+    # plant's contact results sampled as the clearances (systems/object_contacts.py), by when
+    # they first did: {objects: [name, name], t: first sample, samples: how many found it}.
+    object_contacts: list[dict] = field(default_factory=list)
+    # What the run took on this machine, which depends on its speed and load: ``wall_time_s``,
+    # ``realtime_factor`` (simulated / wall time) and ``replan_wall_s`` (one per replan, as in
+    # ``replans``). In the JSON only in real time, where it explains the run; in lockstep the
+    # JSON is the same on every machine, and the command prints these instead.
+    wall_clock: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        data = dict(self.__dict__)
+        if self.mode == "lockstep":
+            del data["wall_clock"]
+        return data
+
+    def save(self, path: str | Path) -> None:
+        """Write the summary JSON, whole or not at all."""
+        outputs.write(path, outputs.json_text(self.to_json()))
+
+
+def default_duration(scenario: Scenario) -> float:
+    """Long enough for the sequential steps with room for replanning."""
+    return 30.0 + 15.0 * scenario.n_objects * scenario.robot.dt
+
+
+def _apply(event: Event, scenario: Scenario, dual, context, meshcat) -> None:
+    """An environment change: knock an object to a new place, or move a goal."""
+    if event.kind == "move_object":
+        j = [o.name for o in scenario.task.objects].index(event.target)
+        knock(dual, context, j, event.position)
+    else:
+        move_goal(dual, context, event.target, event.box)
+        if meshcat is not None:
+            recording.show_goal(meshcat, event.target, event.box, context.get_time())
+
+
+def check_events(scenario: Scenario, duration: float | None = None) -> None:
+    """An event at or after the run's end would never happen: a bad input (``ScenarioError``,
+    naming the event's field and the duration)."""
+    duration = default_duration(scenario) if duration is None else duration
+    for e, event in enumerate(scenario.events):
+        if event.time >= duration:
+            raise ScenarioError(f"events[{e}].time: {event.time:g} s is not before the run's end "
+                                f"(duration {duration:g} s; set --duration)")
+
+
+class _Events:
+    """The run's environment events, the scenario's and the disturbance's, in time order: the
+    simulation advances to :meth:`next_time` and calls :meth:`apply_due` between ``AdvanceTo``
+    segments (events at one time: the scenario's in the file's order, then the disturbance's)."""
+
+    def __init__(self, scenario: Scenario, dual, meshcat, disturb) -> None:
+        self.scenario, self.dual, self.meshcat, self.disturb = scenario, dual, meshcat, disturb
+        self.fixed = sorted(scenario.events, key=lambda e: e.time)
+        self.next = 0
+        self.applied: list[Event] = []  # the disturbance's events
+
+    def next_time(self) -> float | None:
+        """When the next event is due; None when none is left."""
+        times = [self.fixed[self.next].time] if self.next < len(self.fixed) else []
+        look = None if self.disturb is None else self.disturb.next_time()
+        return min(times + ([] if look is None else [look]), default=None)
+
+    def apply_due(self, context) -> None:
+        t = context.get_time()
+        while self.next < len(self.fixed) and self.fixed[self.next].time <= t:
+            _apply(self.fixed[self.next], self.scenario, self.dual, context, self.meshcat)
+            self.next += 1
+        d = self.disturb
+        while d is not None and (look := d.next_time()) is not None and look <= t:
+            for e in d(World.observe(self.dual, context)):
+                _apply(e, self.scenario, self.dual, context, self.meshcat)
+                self.applied.append(e)
+            after = d.next_time()
+            if after is not None and after <= look:
+                raise ValueError(f"disturb: next_time() stayed at {after} after a call")
+
+
+class _Monitor:
+    """The run's ``Simulator`` monitor, called after every simulator step (the plant steps every
+    2 ms; nothing changes in between). It only looks: records every replan from the planner's
+    ``replan`` output (and tells ``progress``), lets ``observe`` look, and ends the run
+    (``EventStatus.ReachedTermination``) once the replans have said ``done`` or ``stuck`` for
+    ``SETTLE_S``, with every object at rest and no event pending. That end is judged at the first
+    simulator step after each replan, on the state the replan saw: judged at the replan's own
+    time, the last replan is Δt old, and an object that crept out of its goal since ended the
+    run outside it (measured: 0.4 mm past a goal's edge at 2.5 mm/s)."""
+
+    def __init__(self, dual, events: _Events, progress, observe) -> None:
+        self.dual, self.events, self.progress, self.observe = dual, events, progress, observe
+        self.replans: list[Replan] = []
+        self.finished_at: float | None = None
+
+    def record(self, context) -> bool:
+        """Record the planner's latest replan; whether it is new."""
+        planner = self.dual.planner
+        r = planner.get_replan_output_port().Eval(planner.GetMyContextFromRoot(context))
+        if r is None or (self.replans and r.t <= self.replans[-1].t):
+            return False
+        self.replans.append(r)
+        if self.progress:
+            self.progress(r)
+        return True
+
+    def __call__(self, context) -> EventStatus:
+        replanned = self.record(context)
+        if self.observe is not None:
+            self.observe(self.dual, context)
+        if not replanned:
+            return EventStatus.Succeeded()
+        last = self.replans[-1]
+        pending = self.events.next_time() is not None
+        if last.status in ("done", "stuck") and not pending and _all_at_rest(self.dual, context):
+            self.finished_at = last.t if self.finished_at is None else self.finished_at
+            if last.t - self.finished_at >= SETTLE_S - 1e-9:
+                return EventStatus.ReachedTermination(None, "every object at rest")
+        else:
+            self.finished_at = None
+        return EventStatus.Succeeded()
+
+
+def simulate(scenario: Scenario, duration: float | None = None, html: str | Path | None = None,
+             progress: Callable[[Replan], None] | None = None,
+             disturb: Disturbance | None = None, meshcat: Meshcat | None = None, *,
+             observe: Callable[[DualArm, Context], None] | None = None,
+             solve: Solve | None = None, record_contacts: bool = False) -> Summary:
+    """Run the closed loop; write the Meshcat replay to ``html`` if given. ``disturb`` adds
+    events decided during the run; the summary lists them after the scenario's. ``meshcat``: a
+    live server to draw the run in as it goes, at real time, and to replay it at the end.
+    ``observe(dual, root_context)`` is called after every simulator step (to look, not to
+    change anything); ``solve`` replaces the planner's solve of one horizon (``MakeDiagram``).
+    ``record_contacts``: draw and record the contact forces and the proximity and inertia
+    geometry too (by default only what a person sees).
+    An event at or after the end is a ``ScenarioError`` (:func:`check_events`)."""
+    duration = default_duration(scenario) if duration is None else duration
+    check_events(scenario, duration)
+    live = meshcat is not None
+    if not live and html:
+        meshcat = recording.start_meshcat()
+    dual = MakeDiagram(scenario, meshcat, solve=solve, contacts=record_contacts)
+    simulator = Simulator(dual.diagram)
+    context = simulator.get_mutable_context()
+    if live:
+        simulator.set_target_realtime_rate(1.0)  # at the speed a person watches
+    events = _Events(scenario, dual, meshcat, disturb)
+    monitor = _Monitor(dual, events, progress, observe)
+    simulator.set_monitor(monitor)
+    wall0 = time.perf_counter()
+    interrupted = False
+    try:
+        simulator.Initialize()
+        if meshcat is not None:  # after: the page shows the scene at t = 0 while the replay loads
+            recording.show_the_work(meshcat, dual.station)
+            recording.start_recording(meshcat, live)
+        while True:  # from one event to the next, each applied between the segments
+            due = events.next_time()
+            until = duration if due is None else min(max(due, context.get_time()), duration)
+            status = simulator.AdvanceTo(until)
+            if until >= duration or (status.reason()
+                                     == SimulatorStatus.ReturnReason.kReachedTerminationCondition):
+                break
+            events.apply_due(context)
+    except KeyboardInterrupt:  # Ctrl-C: the run so far is kept, summary and replay included
+        interrupted = True
+    t = context.get_time()
+    monitor.record(context)  # a replan of the step Ctrl-C cut short
+    wall = time.perf_counter() - wall0
+    dual.planner.close()
+    if meshcat is not None:
+        recording.save_recording(meshcat, html)
+    if live:
+        recording.end_live(meshcat, dual.station, t)
+    return _summary(scenario, dual, context, t, wall, monitor.replans, events.applied,
+                    interrupted)
+
+
+def _object_velocities(dual, context) -> np.ndarray:
+    plant = dual.station.plant
+    pc = plant.GetMyContextFromRoot(context)
+    return np.array([plant.EvalBodySpatialVelocityInWorld(pc, b).translational()
+                     for b in dual.station.objects])
+
+
+def _all_at_rest(dual, context) -> bool:
+    return bool(at_rest(_object_velocities(dual, context), REST_SPEED).all())
+
+
+def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: list[Replan],
+             applied: list[Event] = (), interrupted: bool = False) -> Summary:
+    plant = dual.station.plant
+    pc = plant.GetMyContextFromRoot(context)
+    s = dual.planner.latest_state(dual.planner.GetMyContextFromRoot(context))
+    goals = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
+    pos = np.array([plant.EvalBodyPoseInWorld(pc, b).translation() for b in dual.station.objects])
+    vel = _object_velocities(dual, context)
+    speed = [float(np.linalg.norm(v)) for v in vel]
+    resting = delivered_objects(scenario, pos[:, :2], vel, REST_SPEED, goals)
+    realtime = dual.planner.realtime
+    return Summary(
+        mode="realtime" if realtime else "lockstep",
+        replan_latency_s=dual.planner.latency_s,
+        goals={k: list(v) for k, v in goals.items()},
+        objects=[{"name": o.name, "goal": o.goal} for o in scenario.task.objects],
+        final_object_pos=np.round(pos, 6).tolist(),
+        final_object_speed=[round(v, 6) for v in speed],
+        delivered_time_s=[None if d is None else round(d, 3) for d in s.delivered_time],
+        replans=[{"t": round(r.t, 3), "status": r.status, "cost": r.cost, "horizon": r.horizon,
+                  "objects": [scenario.task.objects[j].name for j in r.objects],
+                  "delivered": r.n_delivered, "note": r.note} for r in replans],
+        sim_time_s=round(t, 3),
+        all_delivered=all(resting),
+        events=[e.__dict__ for e in [*scenario.events, *applied]],
+        replans_over_budget=[round(r.t, 3) for r in replans
+                             if r.status in ("searching", "over_budget")],
+        interrupted=interrupted,
+        min_arm_clearance_m=_least(dual.clearance, context),
+        max_hand_penetration_m=_penetration(_least(dual.hand_clearance, context)),
+        object_contacts=_object_contacts(scenario, dual, context),
+        wall_clock={"wall_time_s": round(wall, 3),
+                    "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),
+                    "replan_wall_s": [round(r.wall_s, 4) for r in replans]},
+    )
+
+
+def _least(clearance, context) -> float | None:
+    """The least distance ``clearance`` measured, floored to 0.1 mm: a clearance reported is
+    never more than measured, a penetration never less."""
+    least = clearance.get_min_clearance_output_port().Eval(
+        clearance.GetMyContextFromRoot(context))[0]
+    if not np.isfinite(least):
+        return None
+    return math.floor(least * 1e4) / 1e4
+
+
+def _object_contacts(scenario: Scenario, dual, context) -> list[dict]:
+    seen = dual.object_contacts
+    own = seen.GetMyContextFromRoot(context)
+    first = seen.get_first_contact_output_port().Eval(own)
+    samples = seen.get_contact_samples_output_port().Eval(own)
+    names = [o.name for o in scenario.task.objects]
+    touched = [{"objects": [names[a], names[b]], "t": round(float(first[k]), 3),
+                "samples": int(samples[k])}
+               for k, (a, b) in enumerate(seen.pairs()) if np.isfinite(first[k])]
+    return sorted(touched, key=lambda c: (c["t"], c["objects"]))
+
+
+def _penetration(least: float | None) -> float | None:
+    return None if least is None else max(0.0, -least)

@@ -1,0 +1,82 @@
+"""The closed-loop Diagram: station, control stack and MPC planner, built in one straight line.
+
+::
+
+    GoalSource ─goals─▶ MpcPlanner ─plan─▶ Interpolator ─▶ Controller ─▶ MultibodyPlant ◀─▶ Gripper
+                            ▲                                                  │
+                            └──────────── measured_state ◀── StateEstimator ◀──┘
+                                  SceneGraph ─query─▶ Clearance ×2
+                       plant ─contact_results─▶ ObjectContacts
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from pydrake.geometry import Meshcat
+from pydrake.systems.framework import Diagram, DiagramBuilder
+
+from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.planning.mpc import Solve
+from dualarm_mpc.sim.station import AddControlStack, AddStation, ControlStack, Station
+from dualarm_mpc.systems.clearance import Clearance
+from dualarm_mpc.systems.goals import GoalSource
+from dualarm_mpc.systems.mpc_planner import MpcPlanner
+from dualarm_mpc.systems.object_contacts import ObjectContacts
+
+
+@dataclass(frozen=True)
+class DualArm:
+    """The built Diagram and the handles a simulation needs."""
+
+    diagram: Diagram
+    station: Station
+    stack: ControlStack
+    planner: MpcPlanner
+    clearance: Clearance  # between the two arms
+    hand_clearance: Clearance  # between the hands and the objects
+    goals: GoalSource
+    object_contacts: ObjectContacts  # pairs of objects that touched while one moved
+
+
+def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
+                time_step: float = 2e-3, solve: Solve | None = None,
+                contacts: bool = False) -> DualArm:
+    """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there
+    what a person sees (the illustration geometry), and with ``contacts`` also the contact forces
+    and the proximity and inertia geometry. ``solve`` replaces the planner's solve of one horizon
+    (``MpcPlanner``)."""
+    builder = DiagramBuilder()
+    station = AddStation(builder, scenario, time_step)
+    stack = AddControlStack(builder, station)
+    planner = builder.AddNamedSystem("mpc_planner", MpcPlanner(scenario, solve=solve))
+    goals = builder.AddNamedSystem("goals", GoalSource(scenario.task.goals))
+    builder.Connect(goals.get_goals_output_port(), planner.get_goals_input_port())
+    builder.Connect(stack.estimator.get_measured_state_output_port(),
+                    planner.get_measured_state_input_port())
+    builder.Connect(planner.get_plan_output_port(), stack.interpolator.get_plan_input_port())
+    clearance = builder.AddNamedSystem("arm_clearance", Clearance(station.arm_pairs))
+    hand_clearance = builder.AddNamedSystem("hand_clearance",
+                                            Clearance(station.hand_object_pairs))
+    for system in (clearance, hand_clearance):
+        builder.Connect(station.scene_graph.get_query_output_port(),
+                        system.get_geometry_query_input_port())
+    plant = station.plant
+    contacts_seen = builder.AddNamedSystem("object_contacts",
+                                           ObjectContacts(plant, station.objects))
+    builder.Connect(plant.get_contact_results_output_port(),
+                    contacts_seen.get_contact_results_input_port())
+    builder.Connect(plant.get_body_spatial_velocities_output_port(),
+                    contacts_seen.get_body_spatial_velocities_input_port())
+    if meshcat is not None:
+        from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
+
+        # Drake's default publishes all four; the contact forces and the hidden geometry were
+        # nine tenths of a replay's animation (docs/drake.md, "Recording and replay").
+        config = VisualizationConfig(publish_proximity=contacts, publish_inertia=contacts,
+                                     publish_contacts=contacts)
+        ApplyVisualizationConfig(config, builder, meshcat=meshcat)
+    diagram = builder.Build()
+    diagram.set_name("dualarm_mpc")
+    return DualArm(diagram, station, stack, planner, clearance, hand_clearance, goals,
+                   contacts_seen)

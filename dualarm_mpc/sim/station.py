@@ -1,0 +1,396 @@
+"""Station: the simulated table-top — plant, robot, table, objects, goal patches — and its drivers.
+
+:func:`AddStation` builds the physical scene from a :class:`~dualarm_mpc.model.scenario.Scenario`;
+:func:`AddControlStack` wires the low-level systems around it (interpolator → controller → plant,
+gripper ↔ plant, state estimator), leaving the plan input and the measured state for the caller
+(the planner, or a fixed plan in tests).
+
+Physics (docs/drake.md, measured): MultibodyPlant with the SAP discrete solver at ``time_step``,
+hydroelastic contact with point-contact fallback. The table is a ``HalfSpace`` at z = 0; the
+objects are ``object_size`` boxes, resting on it at their scenario positions on four small
+spheres at their bottom corners (point contact, four points of support). The boxes themselves,
+compliant hydroelastic, touch each other but not the table. Table and objects share the Coulomb
+friction μ = ``scenario.table.friction`` (so the combined μ is exactly that), low by design: a
+released object slides v²/(2μg). The robot comes from ``models/dual_scara.sdf`` (the single
+source of its geometry and gains); the table, objects and goal patches are made here because
+their count, colours and friction come from the scenario. The arms' collision geometries collide
+with the other arm's only: contact between an arm and the table or the objects is filtered out
+here (the gripper holds objects by force, the hand's tip on the object's top face), within an arm by
+the model's filter groups.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydrake.geometry import (
+    AddCompliantHydroelasticProperties,
+    AddContactMaterial,
+    Box,
+    CollisionFilterDeclaration,
+    GeometryId,
+    GeometrySet,
+    HalfSpace,
+    ProximityProperties,
+    Role,
+    SceneGraph,
+    Sphere,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import (
+    AddMultibodyPlant,
+    CoulombFriction,
+    MultibodyPlant,
+    MultibodyPlantConfig,
+)
+from pydrake.multibody.tree import Joint, ModelInstanceIndex, RigidBody, SpatialInertia
+from pydrake.systems.framework import DiagramBuilder
+
+from dualarm_mpc.base.palette import TABLE_COLOUR, goal_colour
+from dualarm_mpc.model.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
+from dualarm_mpc.sim.resources import ROBOT_URL, package_map
+from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
+from dualarm_mpc.systems.gripper import Gripper
+from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator, Limits
+from dualarm_mpc.systems.state_estimator import StateEstimator
+
+# The arms' names in the robot model: arm 1 (index 0) is the right arm, arm 2 (index 1) the left.
+ARM_SIDES = ("right", "left")
+JOINTS = ("shoulder", "elbow", "z")  # canonical joint c = 3·i + m of arm i
+OBJECT_MASS = 0.1  # kg
+OBJECT_MODULUS = 1e7  # Pa, compliant hydroelastic modulus of the objects
+# m: the spheres an object stands on. Point contact of a box on the table is one point, and a
+# pushed box sank 6-8 mm into it; hydroelastic box-table contact cost 1.4x the physics of a step.
+SUPPORT_RADIUS = 0.002
+
+
+@dataclass(frozen=True)
+class Station:
+    """What :func:`AddStation` made. Index conventions: arm i = 0 right, 1 left; object j in
+    scenario order."""
+
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    robot: ModelInstanceIndex
+    object_instances: tuple[ModelInstanceIndex, ...]
+    hands: tuple[RigidBody, RigidBody]  # end-effector body per arm
+    objects: tuple[RigidBody, ...]
+    arm_joints: tuple[tuple[Joint, Joint, Joint], ...]  # (shoulder, elbow, z) per arm
+    arm_bases: np.ndarray  # (2, 2), read from the model
+    link_lengths: tuple[float, float]  # read from the model
+    elbow_signs: tuple[int, int]
+    position_indices: tuple[int, ...]  # canonical joint c → index in the plant's q
+    actuator_order: tuple[int, ...]  # desired-state slot a → canonical joint c
+    grasp_half_sizes: tuple[float, ...]
+    object_size: float
+    grasp_height: float  # hand height when it holds an object: its tip on the object's top face
+    travel_height: float  # hand height when it holds nothing
+    hand_range: tuple[float, float, float, float]  # the planner's workspace: [x0, x1, y0, y1]
+    hand_gap: float  # eq. (16): x_arm2 + hand_gap ≤ x_arm1
+    time_step: float
+    slide_time_constant: float | None  # the table's viscous drag on sliding objects (Gripper)
+    table: list[float]  # the table top drawn: [x0, x1, y0, y1]
+    # The pairs of collision geometries, one of each arm (right first), that may touch.
+    arm_pairs: tuple[tuple[GeometryId, GeometryId], ...]
+    # Each collision geometry of a hand (tip, quill) with each object's box.
+    hand_object_pairs: tuple[tuple[GeometryId, GeometryId], ...]
+
+    @property
+    def n_objects(self) -> int:
+        return len(self.objects)
+
+
+def _point_contact(mu: float) -> ProximityProperties:
+    props = ProximityProperties()
+    AddContactMaterial(friction=CoulombFriction(mu, mu), properties=props)
+    return props
+
+
+def _object_proximity(size: float, mu: float) -> ProximityProperties:
+    props = _point_contact(mu)
+    AddCompliantHydroelasticProperties(size, OBJECT_MODULUS, props)
+    return props
+
+
+def table_extent(scenario: Scenario, margin: float = 0.15) -> list[float]:
+    """The table top [x0, x1, y0, y1]: ``margin`` beyond the workspace, every goal and every
+    object's start."""
+    xs = [scenario.robot.workspace[0], scenario.robot.workspace[1]]
+    ys = [scenario.robot.workspace[2], scenario.robot.workspace[3]]
+    for box in scenario.task.goals.values():
+        xs += box[:2]
+        ys += box[2:]
+    for o in scenario.task.objects:
+        xs.append(o.position[0])
+        ys.append(o.position[1])
+    return [min(xs) - margin, max(xs) + margin, min(ys) - margin, max(ys) + margin]
+
+
+def _add_table_and_goals(plant: MultibodyPlant, scenario: Scenario) -> GeometryId:
+    """The table (its collision geometry is returned) and the goal patches drawn on it."""
+    world = plant.world_body()
+    table = plant.RegisterCollisionGeometry(world, RigidTransform(), HalfSpace(), "table",
+                                            _point_contact(scenario.table.friction))
+    x0, x1, y0, y1 = table_extent(scenario)
+    thickness = 0.02
+    plant.RegisterVisualGeometry(
+        world,
+        RigidTransform([(x0 + x1) / 2, (y0 + y1) / 2, -thickness / 2]),
+        Box(x1 - x0, y1 - y0, thickness),
+        "table_top",
+        np.array(TABLE_COLOUR),
+    )
+    for name, (gx0, gx1, gy0, gy1) in scenario.task.goals.items():
+        rgb = np.array(goal_colour(name))
+        plant.RegisterVisualGeometry(
+            world,
+            RigidTransform([(gx0 + gx1) / 2, (gy0 + gy1) / 2, 0.0005]),
+            Box(gx1 - gx0, gy1 - gy0, 0.001),
+            f"goal_{name}",
+            np.append(0.6 * rgb + 0.4, 1.0),
+        )
+    return table
+
+
+def _add_objects(
+    plant: MultibodyPlant, scenario: Scenario
+) -> tuple[tuple[ModelInstanceIndex, ...], tuple[RigidBody, ...], tuple[GeometryId, ...]]:
+    """The objects: their model instances, bodies and box collision geometries."""
+    size = scenario.table.object_size
+    support = _point_contact(scenario.table.friction)
+    corner = size / 2 - SUPPORT_RADIUS
+    instances, bodies, boxes = [], [], []
+    for o in scenario.task.objects:
+        instance = plant.AddModelInstance(o.name)
+        body = plant.AddRigidBody(
+            o.name, instance, SpatialInertia.SolidBoxWithMass(OBJECT_MASS, size, size, size)
+        )
+        box = Box(size, size, size)
+        boxes.append(plant.RegisterCollisionGeometry(
+            body, RigidTransform(), box, "collision",
+            _object_proximity(size, scenario.table.friction)))
+        for k, (sx, sy) in enumerate(((1, 1), (1, -1), (-1, 1), (-1, -1))):
+            plant.RegisterCollisionGeometry(
+                body, RigidTransform([sx * corner, sy * corner, -corner]),
+                Sphere(SUPPORT_RADIUS), f"support_{k}", support)
+        plant.RegisterVisualGeometry(
+            body, RigidTransform(), box, "visual", np.append(goal_colour(o.goal), 1.0)
+        )
+        plant.SetDefaultFloatingBaseBodyPose(
+            body, RigidTransform([o.position[0], o.position[1], size / 2])
+        )
+        instances.append(instance)
+        bodies.append(body)
+    return tuple(instances), tuple(bodies), tuple(boxes)
+
+
+def _arm_geometry(plant: MultibodyPlant, joints) -> tuple[np.ndarray, tuple[float, float]]:
+    """Base positions and link lengths, read from the finalized model at q = 0."""
+    context = plant.CreateDefaultContext()  # called before the arms' default angles are set
+    bases, lengths = [], []
+    for shoulder, elbow, z in joints:
+
+        def xy(frame):
+            return frame.CalcPoseInWorld(context).translation()
+
+        p0 = xy(shoulder.frame_on_child())
+        p1 = xy(elbow.frame_on_child())
+        p2 = xy(z.frame_on_child())
+        if abs(p2[2]) > 1e-9:
+            raise ValueError(f"model: the hand of {z.name()} is not at z = q at q = 0 ({p2[2]})")
+        bases.append(p0[:2])
+        lengths.append((np.linalg.norm(p1[:2] - p0[:2]), np.linalg.norm(p2[:2] - p1[:2])))
+    if not np.allclose(lengths[0], lengths[1]):
+        raise ValueError(f"model: the two arms' link lengths differ: {lengths}")
+    return np.array(bases), (float(lengths[0][0]), float(lengths[0][1]))
+
+
+def _arm_pairs(plant: MultibodyPlant, robot: ModelInstanceIndex,
+               scene_graph: SceneGraph) -> tuple[tuple[GeometryId, GeometryId], ...]:
+    """Filters out contact between the arms and everything else (table, objects); returns
+    the pairs of collision geometries, one of each arm, left unfiltered (the two columns, both
+    welded to the world, are not)."""
+    arms = tuple(
+        tuple(g for body in plant.GetBodyIndices(robot)
+              if plant.get_body(body).name().startswith(f"{arm}_")
+              for g in plant.GetCollisionGeometriesForBody(plant.get_body(body)))
+        for arm in ARM_SIDES
+    )
+    robot_ids = [g for arm in arms for g in arm]
+    rest = [g for g in scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)
+            if g not in robot_ids]
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(robot_ids), GeometrySet(rest)))
+    inspector = scene_graph.model_inspector()
+    return tuple((a, b) for a in arms[0] for b in arms[1] if not inspector.CollisionFiltered(a, b))
+
+
+def _tip_radius(plant: MultibodyPlant, hand: RigidBody, scene_graph: SceneGraph) -> float:
+    """The radius of the hand's tip, the sphere at its frame origin (the model's)."""
+    inspector = scene_graph.model_inspector()
+    (tip,) = [g for g in plant.GetCollisionGeometriesForBody(hand)
+              if isinstance(inspector.GetShape(g), Sphere)]
+    return inspector.GetShape(tip).radius()
+
+
+def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2e-3) -> Station:
+    """Adds the plant and scene graph of ``scenario`` to ``builder``; returns what was made.
+
+    The arms start at rest with the hands above ``scenario.robot.hand_start`` at the travel height.
+    Raises ValueError if the scenario's ``arm_bases`` differ from the model's.
+    """
+    if time_step <= 0:
+        raise ValueError(f"time_step must be positive, got {time_step}")
+    config = MultibodyPlantConfig(
+        time_step=time_step,
+        discrete_contact_approximation="sap",
+        contact_model="hydroelastic_with_fallback",
+    )
+    plant, scene_graph = AddMultibodyPlant(config, builder)
+    parser = Parser(plant)
+    parser.package_map().AddMap(package_map())
+    (robot,) = parser.AddModels(url=ROBOT_URL)
+    table = _add_table_and_goals(plant, scenario)
+    object_instances, objects, boxes = _add_objects(plant, scenario)
+    scene_graph.collision_filter_manager().Apply(  # the objects stand on their spheres
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(table), GeometrySet(list(boxes))))
+
+    joints = tuple(
+        tuple(plant.GetJointByName(f"{arm}_{name}", robot) for name in JOINTS) for arm in ARM_SIDES
+    )
+    hands = tuple(plant.GetBodyByName(f"{arm}_hand", robot) for arm in ARM_SIDES)
+    plant.Finalize()
+
+    bases, lengths = _arm_geometry(plant, joints)
+    if not np.allclose(bases, np.asarray(scenario.robot.arm_bases, float), atol=1e-9):
+        raise ValueError(
+            f"arm_bases: the scenario has {scenario.robot.arm_bases}, the robot model "
+            f"{bases.tolist()} (models/dual_scara.sdf is the source of the robot)"
+        )
+    if not (np.allclose(bases, ROBOT_ARM_BASES, atol=1e-9) and
+            np.allclose(lengths, ROBOT_LINKS, atol=1e-9)):
+        raise ValueError(f"model: bases {bases.tolist()} and links {lengths} differ from "
+                         "scenario.ROBOT_ARM_BASES and ROBOT_LINKS, which validate scenarios")
+    travel = TRAVEL_HEIGHT
+    for i, (shoulder, elbow, z) in enumerate(joints):
+        q1, q2 = scara_ik(scenario.robot.hand_start[i], bases[i], lengths, ELBOW_SIGNS[i])
+        shoulder.set_default_angle(q1)
+        elbow.set_default_angle(q2)
+        z.set_default_translation(travel)
+
+    canonical = [joint for arm in joints for joint in arm]
+    position_indices = tuple(j.position_start() for j in canonical)
+    actuated = [
+        plant.get_joint_actuator(a).joint().index() for a in plant.GetJointActuatorIndices(robot)
+    ]
+    actuator_order = tuple([j.index() for j in canonical].index(a) for a in actuated)
+    if sorted(actuator_order) != list(range(6)):
+        raise ValueError(f"model: expected the 6 arm joints to be actuated, got {actuated}")
+    return Station(
+        plant=plant,
+        scene_graph=scene_graph,
+        robot=robot,
+        object_instances=object_instances,
+        hands=hands,
+        objects=objects,
+        arm_joints=joints,
+        arm_bases=bases,
+        link_lengths=lengths,
+        elbow_signs=ELBOW_SIGNS,
+        position_indices=position_indices,
+        actuator_order=actuator_order,
+        grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.task.objects),
+        object_size=scenario.table.object_size,
+        grasp_height=scenario.table.object_size + _tip_radius(plant, hands[0], scene_graph),
+        travel_height=travel,
+        hand_range=tuple(scenario.robot.workspace),
+        hand_gap=scenario.robot.hand_gap,
+        time_step=time_step,
+        slide_time_constant=scenario.table.slide_time_constant,
+        table=table_extent(scenario),
+        arm_pairs=_arm_pairs(plant, robot, scene_graph),
+        hand_object_pairs=tuple((g, box) for hand in hands
+                                for g in plant.GetCollisionGeometriesForBody(hand)
+                                for box in boxes),
+    )
+
+
+@dataclass(frozen=True)
+class ControlStack:
+    """The low-level systems :func:`AddControlStack` added. Left open for the caller:
+    ``interpolator.get_plan_input_port()`` (a TimedTrajectory) and
+    ``estimator.get_measured_state_output_port()``."""
+
+    interpolator: Interpolator
+    controller: Controller
+    gripper: Gripper
+    estimator: StateEstimator
+
+
+def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
+    """Adds and connects Interpolator → Controller → plant, Gripper ↔ plant, StateEstimator.
+
+    ::
+
+        plan ─▶ Interpolator ─hand_reference─▶ Controller ─desired_state─▶ plant
+                     │ grasp_command               ▲ plant_state             │
+                     ▼                             └─────────────────────────┤
+                  Gripper ◀─ body_poses, body_spatial_velocities ────────────┤
+                     │ spatial_forces ─▶ plant (applied_spatial_force)       │
+                     │ grasp                                                  │
+                     ▼                                                        │
+               StateEstimator ◀─ body_poses, body_spatial_velocities ────────┘
+                     │
+                     ▼ measured_state
+    """
+    plant = station.plant
+    interpolator = builder.AddNamedSystem(
+        "interpolator",
+        Interpolator(station.n_objects, station.grasp_height, station.travel_height,
+                     limits=Limits(station.hand_range, station.hand_gap)),
+    )
+    controller = builder.AddNamedSystem(
+        "controller",
+        Controller(
+            station.arm_bases,
+            station.link_lengths,
+            station.position_indices,
+            station.actuator_order,
+            plant.num_multibody_states(),
+            station.elbow_signs,
+            hand_gap=station.hand_gap,
+        ),
+    )
+    gripper = builder.AddNamedSystem(
+        "gripper",
+        Gripper(plant, station.hands, station.objects, station.grasp_half_sizes, station.time_step,
+                hold_height=station.grasp_height - station.object_size / 2,
+                slide_time_constant=station.slide_time_constant),
+    )
+    estimator = builder.AddNamedSystem(
+        "state_estimator", StateEstimator(station.hands, station.objects)
+    )
+    builder.Connect(
+        interpolator.get_hand_reference_output_port(), controller.get_hand_reference_input_port()
+    )
+    builder.Connect(plant.get_state_output_port(), controller.get_plant_state_input_port())
+    builder.Connect(
+        controller.get_desired_state_output_port(),
+        plant.get_desired_state_input_port(station.robot),
+    )
+    builder.Connect(
+        interpolator.get_grasp_command_output_port(), gripper.get_grasp_command_input_port()
+    )
+    for system in (gripper, estimator):
+        builder.Connect(plant.get_body_poses_output_port(), system.get_body_poses_input_port())
+        builder.Connect(
+            plant.get_body_spatial_velocities_output_port(),
+            system.get_body_spatial_velocities_input_port(),
+        )
+    builder.Connect(
+        gripper.get_spatial_forces_output_port(), plant.get_applied_spatial_force_input_port()
+    )
+    builder.Connect(gripper.get_grasp_output_port(), estimator.get_grasp_input_port())
+    return ControlStack(interpolator, controller, gripper, estimator)
