@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from scenes import two_objects
 from strategies import formulas
 
-from dualarm_mpc.logic.ltl import Atom, Formula, nnf, rename_atoms
+from dualarm_mpc.logic.ltl import Atom, Formula
+from dualarm_mpc.logic.transform import nnf, rename_atoms
 from dualarm_mpc.milp.horizon import solve_options, solve_step
 from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.mld import State

@@ -17,7 +17,9 @@ from pydrake.solvers import MathematicalProgram
 from strategies import formulas, traces
 
 from dualarm_mpc.logic.evaluate import evaluate
-from dualarm_mpc.logic.ltl import Atom, F, G, atoms, nnf, parse
+from dualarm_mpc.logic.ltl import Atom, F, G
+from dualarm_mpc.logic.parser import parse
+from dualarm_mpc.logic.transform import atoms, nnf
 from dualarm_mpc.milp.backends import solve
 from dualarm_mpc.milp.encoding import Encoder, EncodingError, Literal
 from dualarm_mpc.milp.horizon import build_program, solve_step

@@ -7,24 +7,9 @@ from hypothesis import given, settings
 from strategies import formulas, traces
 
 from dualarm_mpc.logic.evaluate import evaluate, truth_table
-from dualarm_mpc.logic.ltl import (
-    FALSE,
-    TRUE,
-    WX,
-    Atom,
-    Equiv,
-    F,
-    G,
-    M,
-    R,
-    U,
-    W,
-    X,
-    atoms,
-    eta,
-    parse,
-    theta,
-)
+from dualarm_mpc.logic.ltl import FALSE, TRUE, WX, Atom, Equiv, F, G, M, R, U, W, X, eta, theta
+from dualarm_mpc.logic.parser import parse
+from dualarm_mpc.logic.transform import atoms
 
 a, b = Atom("a"), Atom("b")
 FAST = settings(max_examples=200, deadline=None)

@@ -11,7 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from strategies import formulas
 
-from dualarm_mpc.logic.ltl import Atom, LTLSyntaxError, parse
+from dualarm_mpc.logic.ltl import Atom
+from dualarm_mpc.logic.parser import LTLSyntaxError, parse
 from dualarm_mpc.model.scenario import (
     YAML_FIELDS,
     Event,

@@ -12,7 +12,6 @@ from strategies import formulas, traces
 from dualarm_mpc.logic.evaluate import truth_table
 from dualarm_mpc.logic.ltl import (
     FALSE,
-    MAX_DEPTH,
     TRUE,
     WX,
     Always,
@@ -25,7 +24,6 @@ from dualarm_mpc.logic.ltl import (
     Formula,
     G,
     Implies,
-    LTLSyntaxError,
     M,
     Next,
     Not,
@@ -40,17 +38,13 @@ from dualarm_mpc.logic.ltl import (
     WeakUntil,
     X,
     Xor,
-    atoms,
     conj,
     disj,
     eta,
-    nnf,
-    parse,
-    partial,
-    placeholders,
-    substitute,
     theta,
 )
+from dualarm_mpc.logic.parser import MAX_DEPTH, LTLSyntaxError, parse
+from dualarm_mpc.logic.transform import atoms, nnf, partial, placeholders, substitute
 
 a, b, c = Atom("a"), Atom("b"), Atom("c")
 GROUND = [a, b, eta(1, 3), theta(2)]

@@ -5,10 +5,10 @@ binary, Spot is not on the package index), which evaluates a formula on a trace 
 Giacomo & Vardi's semantics. It reads ltlf2dfa's syntax: lower-case atoms and
 ``! & | -> <-> X WX G F U R true false last``. Our W, M and xor it has not: they are given to it by
 their textbook definitions (Spot's), ``a W b = (a U b) | G a``, ``a M b = b U (a & b)`` and
-``a xor b = !(a <-> b)``, not by the rewriting ``ltl.nnf`` uses, so they are checked too. Every
-subformula is parenthesized: flloat's precedence is not Spot's (docs/ltl.md). Traces have at least
-one step (a horizon is k = 0..T, T ≥ 0); on the empty trace, which never arises here, LTLf tools
-differ.
+``a xor b = !(a <-> b)``, not by the rewriting ``transform.nnf`` uses, so they are checked too.
+Every subformula is parenthesized: flloat's precedence is not Spot's (docs/ltl.md). Traces have at
+least one step (a horizon is k = 0..T, T ≥ 0); on the empty trace, which never arises here, LTLf
+tools differ.
 """
 
 from __future__ import annotations
@@ -36,9 +36,9 @@ from dualarm_mpc.logic.ltl import (
     WeakUntil,
     Xor,
     eta,
-    parse,
     theta,
 )
+from dualarm_mpc.logic.parser import parse
 
 LTLfParser = pytest.importorskip("flloat.parser.ltlf").LTLfParser
 

@@ -19,7 +19,8 @@ from scenes import random_scene, scene
 from strategies import formulas, traces
 
 from dualarm_mpc.logic.evaluate import evaluate
-from dualarm_mpc.logic.ltl import Atom, parse
+from dualarm_mpc.logic.ltl import Atom
+from dualarm_mpc.logic.parser import parse
 from dualarm_mpc.milp.backends import solve_standard_form
 from dualarm_mpc.milp.horizon import HorizonProgram, solve_options, solve_step
 from dualarm_mpc.milp.solver import SolveOptions, Status

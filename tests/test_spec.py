@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from strategies import formulas
 
-from dualarm_mpc.logic.ltl import eta, nnf, theta
+from dualarm_mpc.logic.ltl import eta, theta
+from dualarm_mpc.logic.transform import nnf
 from dualarm_mpc.model.scenario import ScenarioError, load_scenario
 from dualarm_mpc.model.spec import MAX_RULE_INSTANCES, negated_atoms, rule_formulas, specification
 

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from dualarm_mpc.base import outputs
-from dualarm_mpc.logic.ltl import LTLSyntaxError
+from dualarm_mpc.logic.parser import LTLSyntaxError
 from dualarm_mpc.model.scenario import (
     SOLVER_BACKENDS,
     ScenarioError,

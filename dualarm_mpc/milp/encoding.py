@@ -1,6 +1,6 @@
 """LTL over the finite horizon → mixed-integer linear constraints ([7] Wolff, [18] Kurtz & Lin).
 
-The formula is put in negation normal form (``ltl.nnf``, which also writes ``<->``, ``xor``,
+The formula is put in negation normal form (``transform.nnf``, which also writes ``<->``, ``xor``,
 ``W`` and ``M`` with the operators below), then each subformula φ at step k gets a truth value
 z_φ(k) that may only be 1 if φ holds, which is all that is needed with the root fixed to 1:
 
@@ -38,8 +38,8 @@ from dualarm_mpc.logic.ltl import (
     Release,
     Until,
     WeakNext,
-    nnf,
 )
+from dualarm_mpc.logic.transform import nnf
 from dualarm_mpc.milp.linear import Rows, bound, new_variables
 from dualarm_mpc.milp.solver import StandardForm
 

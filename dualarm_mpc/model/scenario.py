@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from dualarm_mpc.base import yamlcore
-from dualarm_mpc.logic.ltl import LTLSyntaxError, parse
+from dualarm_mpc.logic.parser import LTLSyntaxError, parse
 
 BUILTIN = ("table1_vc", "table1_vd")
 SOLVER_BACKENDS = ("highs", "scip", "gurobi", "cplex")  # solver.BACKENDS, without importing it

@@ -37,18 +37,13 @@ from dualarm_mpc.logic.ltl import (
     WeakNext,
     WeakUntil,
     Xor,
-    atoms,
     conj,
     disj,
-    nnf,
-    parse,
-    partial,
-    placeholders,
-    rename_atoms,
-    substitute,
     theta,
 )
-from dualarm_mpc.logic.ltl import size as formula_size
+from dualarm_mpc.logic.parser import parse
+from dualarm_mpc.logic.transform import atoms, nnf, partial, placeholders, rename_atoms, substitute
+from dualarm_mpc.logic.transform import size as formula_size
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.scenario import Scenario, ScenarioError
 
