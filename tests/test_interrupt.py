@@ -37,8 +37,9 @@ def test_a_stop_before_the_first_step_returns_the_initial_state() -> None:
 
 def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monkeypatch) -> None:
     from dualarm_mpc.cli import app as cli
+    from dualarm_mpc.cli import process
 
-    monkeypatch.setattr(cli, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
+    monkeypatch.setattr(process, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
     from dualarm_mpc.planning import sequential
 
     def slow_first_step(scenario, options, progress, tried):  # a step longer than a 0.1 s tick

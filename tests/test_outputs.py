@@ -331,10 +331,10 @@ def test_a_stdout_closed_from_the_start_does_not_cost_the_plan(scene) -> None:
 
 
 def test_a_long_check_says_it_is_still_checking(monkeypatch, capsys) -> None:
-    from dualarm_mpc.cli import app as cli_module
+    from dualarm_mpc.cli import process
     from dualarm_mpc.planning import consistency
 
-    monkeypatch.setattr(cli_module, "HEARTBEAT_S", 0.0)  # every tick: the line a long check prints
+    monkeypatch.setattr(process, "HEARTBEAT_S", 0.0)  # every tick: the line a long check prints
     check = consistency.check
 
     def slow_check(*args, **kwargs):  # a check longer than a 0.1 s tick
