@@ -7,6 +7,10 @@
                             └──────────── measured_state ◀── StateEstimator ◀──┘
                                   SceneGraph ─query─▶ Clearance ×2
                        plant ─contact_results─▶ ObjectContacts
+
+The Diagram exports its outputs by name (:func:`_export`; docs/drake.md, "Ports"), so that a
+user connects stock systems (a ``VectorLogSink``, a ``TrajectorySource``) to
+``diagram.GetOutputPort(name)`` without knowing the systems inside.
 """
 
 from __future__ import annotations
@@ -23,11 +27,13 @@ from dualarm_mpc.systems.clearance import Clearance
 from dualarm_mpc.systems.goals import GoalSource
 from dualarm_mpc.systems.mpc_planner import MpcPlanner
 from dualarm_mpc.systems.object_contacts import ObjectContacts
+from dualarm_mpc.systems.state_estimator import StateEstimator
 
 
 @dataclass(frozen=True)
 class DualArm:
-    """The built Diagram and the handles a simulation needs."""
+    """The built Diagram and the handles a simulation needs. A context manager: the ``with``
+    block's end closes the planner (``MpcPlanner.close``)."""
 
     diagram: Diagram
     station: Station
@@ -38,6 +44,25 @@ class DualArm:
     goals: GoalSource
     object_contacts: ObjectContacts  # pairs of objects that touched while one moved
 
+    def __enter__(self) -> DualArm:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.planner.close()
+
+
+def _export(builder: DiagramBuilder, station: Station, stack: ControlStack,
+            planner: MpcPlanner) -> None:
+    """The Diagram's output ports, each under its system's port name: the measured state and its
+    named parts (StateEstimator), the robot's joint state ``robot_state`` [q (6), v (6)] (the
+    plant's, of the robot model instance), and the plan in force as itself, as Drake
+    trajectories, and the last replan (MpcPlanner)."""
+    for name in ("measured_state", *StateEstimator.PARTS):
+        builder.ExportOutput(stack.estimator.GetOutputPort(name), name)
+    builder.ExportOutput(station.plant.get_state_output_port(station.robot), "robot_state")
+    for name in ("plan", "replan", "hand_trajectory", "object_trajectory", "grasp_schedule"):
+        builder.ExportOutput(planner.GetOutputPort(name), name)
+
 
 def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
                 time_step: float = 2e-3, solve: Solve | None = None,
@@ -45,7 +70,7 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there
     what a person sees (the illustration geometry), and with ``contacts`` also the contact forces
     and the proximity and inertia geometry. ``solve`` replaces the planner's solve of one horizon
-    (``MpcPlanner``)."""
+    (``MpcPlanner``). The Diagram's output ports are :func:`_export`'s."""
     builder = DiagramBuilder()
     station = AddStation(builder, scenario, time_step)
     stack = AddControlStack(builder, station)
@@ -76,6 +101,7 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
         config = VisualizationConfig(publish_proximity=contacts, publish_inertia=contacts,
                                      publish_contacts=contacts)
         ApplyVisualizationConfig(config, builder, meshcat=meshcat)
+    _export(builder, station, stack, planner)
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
     return DualArm(diagram, station, stack, planner, clearance, hand_clearance, goals,

@@ -6,18 +6,25 @@ the new :class:`~dualarm_mpc.planning.mpc.MpcState` and the replan's record in i
 The new state takes over ``solver.replan_latency_s`` of simulated time after the replan (0 by
 default: at once; at most Δt), held until then as the pending state; the plan in force meanwhile is
 the previous one. The output ports only read that state: the plan in
-force, and the last replan (the closed loop records every one of them; the log is not kept in the
-state). The state holds values only: a search that runs on (real time) is the Replanner's.
+force, also as Drake trajectories (:mod:`~dualarm_mpc.systems.trajectories`), and the last replan
+(the closed loop records every one of them; the log is not kept in the state). The state holds
+values only: a search that runs on (real time) is the Replanner's, stopped by :meth:`close`, at
+the end of a ``with`` block, when the planner is collected, or at the interpreter's exit.
 """
 
 from __future__ import annotations
+
+import threading
+import weakref
 
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from dualarm_mpc.model.mld import State
+from dualarm_mpc.model.plan import TimedTrajectory
 from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.planning.mpc import MpcState, Replan, Replanner, Solve
+from dualarm_mpc.systems.trajectories import grasp_schedule, hand_trajectory, object_trajectory
 
 __all__ = ["MpcPlanner", "MpcState", "Replan"]
 
@@ -34,13 +41,21 @@ class MpcPlanner(LeafSystem):
         output_ports:
         - plan
         - replan
+        - hand_trajectory
+        - object_trajectory
+        - grasp_schedule
 
     ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.model.mld.State` as
     :meth:`~dualarm_mpc.model.mld.State.vector` lays it out (the StateEstimator's output). ``goals``
     (abstract): dict goal name → box [xmin, xmax, ymin, ymax], read at every replan (a moved goal
     counts from the next one). ``plan``: the :class:`~dualarm_mpc.model.plan.TimedTrajectory` in
     force (abstract). ``replan``: the last replan's :class:`~dualarm_mpc.planning.mpc.Replan`
-    (abstract; None before the first).
+    (abstract; None before the first). ``hand_trajectory``, ``object_trajectory``,
+    ``grasp_schedule``: the plan in force as ``PiecewisePolynomial`` objects over simulated time
+    (4, 2N and 2N rows; :mod:`~dualarm_mpc.systems.trajectories` says what each holds),
+    abstract (pydrake binds no ``Value[PiecewisePolynomial]``: the value is a Python object),
+    made once per plan. A stock ``TrajectorySource`` takes one (its constructor or
+    ``UpdateTrajectory``). A context manager: the ``with`` block's end calls :meth:`close`.
     ``solve`` replaces one horizon's solve (``sequential.solve_horizon``), e.g. to inject failures.
     """
 
@@ -67,13 +82,32 @@ class MpcPlanner(LeafSystem):
         self._replan = self.DeclareAbstractOutputPort(
             "replan", lambda: AbstractValue.Make(None), self._calc_replan,
             prerequisites_of_calc={self.abstract_state_ticket(self._last)})
+        self._hand_trajectory, self._object_trajectory, self._grasp_schedule = (
+            self._declare_trajectory(name, convert, initial.plan) for name, convert in (
+                ("hand_trajectory", hand_trajectory), ("object_trajectory", object_trajectory),
+                ("grasp_schedule", grasp_schedule)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
         if 0 < self.latency_s < dt:  # a latency of Δt takes over at the next replan's update
             self.DeclarePeriodicUnrestrictedUpdateEvent(dt, self.latency_s, self._take_over)
 
+        # Holds the Replanner, not the planner: a planner nobody closed stops its search when
+        # collected, or at exit at the latest. concurrent.futures joins its worker threads at
+        # exit before atexit (weakref.finalize's hook) runs, and a running search would hold the
+        # exit until it ended; threading's exit hooks run before that join, the last registered
+        # first, so this one stops the search first.
+        self._closer = weakref.finalize(self, self._replanner.close)
+        if self.realtime:
+            threading._register_atexit(self._closer)
+
     def close(self) -> None:
         """Stop a search still running in the background (real time; the simulation is over)."""
-        self._replanner.close()
+        self._closer()
+
+    def __enter__(self) -> MpcPlanner:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def get_measured_state_input_port(self):
         return self._measured
@@ -87,6 +121,15 @@ class MpcPlanner(LeafSystem):
     def get_replan_output_port(self):
         return self._replan
 
+    def get_hand_trajectory_output_port(self):
+        return self._hand_trajectory
+
+    def get_object_trajectory_output_port(self):
+        return self._object_trajectory
+
+    def get_grasp_schedule_output_port(self):
+        return self._grasp_schedule
+
     def mpc_state(self, context) -> MpcState:
         """The state in force (its plan is the one the robot follows)."""
         return context.get_abstract_state(self._state).get_value()
@@ -95,6 +138,13 @@ class MpcPlanner(LeafSystem):
         """The last replan's state, pending or in force (what the planner last counted)."""
         pending = context.get_abstract_state(self._pending).get_value()
         return self.mpc_state(context) if pending is None else pending[1]
+
+    def _declare_trajectory(self, name: str, convert, initial: TimedTrajectory):
+        """An output port of the plan in force as ``convert`` makes it a Drake trajectory."""
+        return self.DeclareAbstractOutputPort(
+            name, lambda: AbstractValue.Make(convert(initial)),
+            lambda context, output: output.set_value(convert(self.mpc_state(context).plan)),
+            prerequisites_of_calc={self.abstract_state_ticket(self._state)})
 
     def _calc_plan(self, context, output) -> None:
         output.set_value(self.mpc_state(context).plan)

@@ -30,6 +30,11 @@ class StateEstimator(LeafSystem):
         - grasp
         output_ports:
         - measured_state
+        - hand_positions
+        - hand_velocities
+        - object_positions
+        - object_velocities
+        - grasp_state
 
     ``body_poses`` / ``body_spatial_velocities``: the plant's outputs of the same names (the
     plant's own kinematics, shared with the Gripper; no scratch context is needed).
@@ -37,8 +42,16 @@ class StateEstimator(LeafSystem):
     ``measured_state`` (8 + 6N): the measured :class:`~dualarm_mpc.model.mld.State` as
     :meth:`~dualarm_mpc.model.mld.State.vector` lays it out (hand_pos, hand_vel, object_pos,
     object_vel, grasp); hand i = 0 is the right hand, 1 the left, measured at the end-effector
-    body's origin.
+    body's origin. The same values, by name, for stock systems (a ``VectorLogSink``) and readers
+    who do not know the layout: ``hand_positions`` (4: x, y of hand 1, then hand 2; m),
+    ``hand_velocities`` (4; m/s), ``object_positions`` (2N: x, y of each object; m),
+    ``object_velocities`` (2N; m/s), ``grasp_state`` (2N: η_ij at ``i·N + j``, 1 while the
+    gripper holds object j in hand i, else 0).
     """
+
+    # The named ports in the order of State.vector's layout.
+    PARTS = ("hand_positions", "hand_velocities", "object_positions", "object_velocities",
+             "grasp_state")
 
     def __init__(self, hand_bodies: Sequence[RigidBody], object_bodies: Sequence[RigidBody]):
         super().__init__()
@@ -56,6 +69,10 @@ class StateEstimator(LeafSystem):
         self._measured_state = self.DeclareVectorOutputPort(
             "measured_state", State.size(self._n), self._calc_measured_state
         )
+        start = 0
+        for name, size in zip(self.PARTS, (4, 4, *[2 * self._n] * 3), strict=True):
+            self.DeclareVectorOutputPort(name, size, self._part(start, size))
+            start += size
 
     def get_body_poses_input_port(self):
         return self._body_poses
@@ -68,6 +85,12 @@ class StateEstimator(LeafSystem):
 
     def get_measured_state_output_port(self):
         return self._measured_state
+
+    def _part(self, start: int, size: int):
+        """The calc of a named port: its slice of ``measured_state`` (cached: computed once)."""
+        def calc(context, output):
+            output.SetFromVector(self._measured_state.Eval(context)[start:start + size])
+        return calc
 
     def _calc_measured_state(self, context, output):
         poses = self._body_poses.Eval(context)
