@@ -7,6 +7,8 @@ import json
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.multibody.math import SpatialVelocity
 from pydrake.multibody.parsing import Parser
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
@@ -40,6 +42,7 @@ from dualarm_mpc.systems.interpolator import (
 )
 from dualarm_mpc.systems.object_contacts import ObjectContacts
 from dualarm_mpc.systems.state_estimator import StateEstimator
+from dualarm_mpc.systems.trajectories import plan_trajectories
 
 G = 9.81
 GRASP_HEIGHT = 0.025
@@ -620,3 +623,90 @@ def test_the_closed_loop_in_lockstep_applies_each_plan_one_latency_after_its_rep
     assert all(steps == first["horizon"] for steps, _ in after)
     assert max(v for _, v in after) > 0.02  # moving towards the object
     assert "wall" not in json.dumps(summary.to_json())
+
+
+# --- Drake's own types at the ports (issue 48) ---------------------------------------------------
+
+
+def _carry_and_throw() -> TimedTrajectory:
+    """The right hand grasps object 1 at step 1, carries it and lets it go at step 3 at speed
+    (it slides one step on); object 2 stays. t0 = 2 s, Δt = 1 s."""
+    nodes = [([0.1, 0.0], [0, 0.1]), ([0.1, 0.1], [0, 0.2]), ([0.1, 0.3], [0, 0.3]),
+             ([0.1, 0.6], [0, 0.1]), ([0.1, 0.7], [0, 0]), ([0.1, 0.7], [0, 0])]
+    plan = right_hand_plan(nodes, [0, 1, 1, 0, 0, 0], t0=2.0, n=2)
+    traj = plan.trajectory
+    objects = np.array([[[0.12, 0.1], [-0.3, 0.2]]] * 6)
+    objects[2:, 0, 1] = [0.3, 0.6, 0.9, 0.9]  # with the hand from step 1, sliding in step 3
+    vel = np.diff(objects, axis=0, append=objects[-1:])
+    return TimedTrajectory(plan.t0, plan.dt, Trajectory(traj.hand_pos, traj.hand_vel, traj.force,
+                                                        objects, vel, traj.grasp))
+
+
+def test_plan_trajectories_hold_the_plan_at_its_steps_and_the_interpolators_curve_between():
+    plan = _carry_and_throw()
+    traj, drake = plan.trajectory, plan_trajectories(plan)
+    assert (drake.hand.rows(), drake.objects.rows(), drake.grasp.rows()) == (4, 4, 4)
+    assert (drake.hand.start_time(), drake.hand.end_time()) == (2.0, 7.0)
+    assert drake.objects.end_time() == 7.0 and drake.grasp.end_time() == 8.0
+    velocity = drake.hand.derivative(1)
+    for k in range(6):
+        t = 2.0 + k
+        np.testing.assert_allclose(drake.hand.value(t).ravel(), traj.hand_pos[k].ravel(),
+                                   atol=1e-12)
+        np.testing.assert_allclose(velocity.value(t).ravel(), node_velocities(traj, k).ravel(),
+                                   atol=1e-12)  # at the release (k = 3) v(2), not v(3)
+        np.testing.assert_allclose(drake.objects.value(t).ravel(), traj.object_pos[k].ravel(),
+                                   atol=1e-12)
+    for t in np.linspace(0.0, 9.0, 91):  # the hands' planar reference, the gripper's command
+        reference = sample_hands(plan, t, TRAVEL_HEIGHT, GRASP_HEIGHT).reshape(2, 6)
+        np.testing.assert_allclose(drake.hand.value(t).reshape(2, 2), reference[:, :2],
+                                   atol=1e-12)
+        if 2.0 <= t <= 7.0:
+            np.testing.assert_allclose(velocity.value(t).reshape(2, 2), reference[:, 3:5],
+                                       atol=1e-12)
+        np.testing.assert_array_equal(drake.grasp.value(t).ravel(), sample_grasp(plan, t))
+    # the objects as the plan's model moves them: v_obj(k) all through step k
+    np.testing.assert_allclose(drake.objects.value(4.5).ravel(), [0.12, 0.45, -0.3, 0.2])
+    np.testing.assert_allclose(drake.objects.derivative(1).value(5.5).ravel(), [0, 0.3, 0, 0])
+    np.testing.assert_allclose(drake.objects.value(6.5).ravel(), [0.12, 0.9, -0.3, 0.2])
+
+
+def test_a_plan_of_one_step_is_held_for_one_step():
+    plan = TimedTrajectory(3.0, 0.5, empty_plan(1, np.array([[0.2, 0.1], [-0.2, 0.1]])).trajectory)
+    drake = plan_trajectories(plan)
+    for part in (drake.hand, drake.objects, drake.grasp):
+        assert (part.start_time(), part.end_time()) == (3.0, 3.5)
+    for t in (2.0, 3.0, 3.2, 9.0):
+        np.testing.assert_allclose(drake.hand.value(t).ravel(), [0.2, 0.1, -0.2, 0.1])
+        np.testing.assert_allclose(drake.hand.derivative(1).value(t).ravel(), 0.0)
+        np.testing.assert_array_equal(drake.grasp.value(t).ravel(), [0, 0])
+
+
+def test_the_estimators_named_ports_are_the_measured_states_parts():
+    station = AddStation(DiagramBuilder(), one_object_scenario())
+    estimator = StateEstimator(station.hands, station.objects)
+    context = estimator.CreateDefaultContext()
+    rng = np.random.default_rng(0)
+    p, v = rng.uniform(-1, 1, (3, 3)), rng.uniform(-1, 1, (3, 3))
+    poses = [RigidTransform()] * station.plant.num_bodies()
+    velocities = [SpatialVelocity()] * station.plant.num_bodies()
+    for body, pk, vk in zip((*station.hands, *station.objects), p, v, strict=True):
+        poses[body.index()] = RigidTransform(pk)
+        velocities[body.index()] = SpatialVelocity(np.zeros(3), vk)
+    estimator.get_body_poses_input_port().FixValue(context, AbstractValue.Make(poses))
+    estimator.get_body_spatial_velocities_input_port().FixValue(
+        context, AbstractValue.Make(velocities))
+    estimator.get_grasp_input_port().FixValue(context, [0.0, 1.0])
+    measured = State.from_vector(estimator.get_measured_state_output_port().Eval(context), 1)
+
+    def port(name):
+        return estimator.GetOutputPort(name).Eval(context)
+
+    np.testing.assert_array_equal(port("hand_positions"), p[:2, :2].ravel())
+    np.testing.assert_array_equal(port("hand_velocities"), v[:2, :2].ravel())
+    np.testing.assert_array_equal(port("object_positions"), p[2, :2])
+    np.testing.assert_array_equal(port("object_velocities"), v[2, :2])
+    np.testing.assert_array_equal(port("grasp_state"), [0, 1])
+    for name, part in zip(StateEstimator.PARTS, ("hand_pos", "hand_vel", "object_pos",
+                                                 "object_vel", "grasp"), strict=True):
+        np.testing.assert_array_equal(port(name), getattr(measured, part).ravel())
