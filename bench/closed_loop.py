@@ -65,8 +65,14 @@ from benchlib import (
 )
 
 from dualarm_mpc.model.mld import REST_SPEED, in_goal
-from dualarm_mpc.model.scenario import ScenarioError, load_scenario, merge_overrides, parse_override
-from dualarm_mpc.sim.closed_loop import on_robot, simulate
+from dualarm_mpc.model.scenario import (
+    ScenarioError,
+    load_scenario,
+    merge_overrides,
+    on_robot_overrides,
+    parse_override,
+)
+from dualarm_mpc.sim.closed_loop import simulate
 
 SCENARIO = "table1_vd"
 M_O, N_O = 2, 6
@@ -107,7 +113,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict]) -> dict:
     """The robot's settings (as ``dualarm-mpc simulate``), then this run's, then ``--set``."""
-    out = {**on_robot(load_scenario(SCENARIO)), "rule": rule, "seed": seed, "m_o": M_O,
+    out = {**on_robot_overrides(load_scenario(SCENARIO)), "rule": rule, "seed": seed, "m_o": M_O,
            "n_o": N_O}
     if time_limit is not None:
         out["solver"] = {"time_limit_s": time_limit}

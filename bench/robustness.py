@@ -2,7 +2,7 @@
 
 What it measures: for each rule and seed, the scenario ``table1_vd`` (ten objects uniform in
 [-0.25, 0.25]² from the seed, reachable goals, its default (m_o, n_o)) with the robot's settings
-(:func:`dualarm_mpc.sim.closed_loop.on_robot`) runs closed loop while
+(:func:`dualarm_mpc.model.scenario.on_robot_overrides`) runs closed loop while
 :class:`dualarm_mpc.sim.disturbances.RandomDisturbances` disturbs it, once per kind by default
 (``--per-kind``): an object knocked out of the hand that carries it (``held``), out of its goal
 (``delivered``), anywhere on the table (``table``); a goal moved (``goal``). That module says
@@ -70,8 +70,14 @@ from benchlib import (
 )
 from closed_loop import NO_SOLVE, parse_set, percentiles, resting_in_goal, summary_record
 
-from dualarm_mpc.model.scenario import SOLVER_BACKENDS, Scenario, load_scenario, merge_overrides
-from dualarm_mpc.sim.closed_loop import default_duration, on_robot, simulate
+from dualarm_mpc.model.scenario import (
+    SOLVER_BACKENDS,
+    Scenario,
+    load_scenario,
+    merge_overrides,
+    on_robot_overrides,
+)
+from dualarm_mpc.sim.closed_loop import default_duration, simulate
 from dualarm_mpc.sim.disturbances import KINDS, RandomDisturbances
 
 SCENARIO = "table1_vd"
@@ -120,7 +126,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def scenario_for(rule: int, seed: int, task: dict) -> Scenario:
     """``table1_vd`` with the robot's settings, this run's rule and seed, then ``--set``."""
-    out = {**on_robot(load_scenario(SCENARIO)), "rule": rule, "seed": seed}
+    out = {**on_robot_overrides(load_scenario(SCENARIO)), "rule": rule, "seed": seed}
     solver = {"backend": task.get("solver", "highs")}
     if task["time_limit"] is not None:
         solver["time_limit_s"] = task["time_limit"]

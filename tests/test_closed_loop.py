@@ -49,9 +49,10 @@ from dualarm_mpc.model.scenario import (
     Task,
     apply_overrides,
     load_scenario,
+    on_robot_overrides,
 )
 from dualarm_mpc.planning.sequential import solve_horizon
-from dualarm_mpc.sim.closed_loop import Summary, on_robot, simulate
+from dualarm_mpc.sim.closed_loop import Summary, simulate
 from dualarm_mpc.sim.recording import is_self_contained
 
 pytestmark = pytest.mark.slow  # closed-loop simulations in Drake, seconds to minutes each
@@ -253,7 +254,7 @@ def test_a_plan_that_keeps_objects_apart_shoves_none_where_the_papers_plan_does(
     shoved = simulate(in_the_way())
     assert [c["objects"] for c in shoved.object_contacts] == [["a", "b"]]
     assert np.abs(np.subtract(shoved.final_object_pos[1][:2], [0.3, 0.4])).max() > 0.01
-    kept = simulate(in_the_way(**{k: v for k, v in on_robot(in_the_way()).items()
+    kept = simulate(in_the_way(**{k: v for k, v in on_robot_overrides(in_the_way()).items()
                                   if k == "object_clearance"}))
     assert kept.object_contacts == []
     assert_all_at_rest_in_goals(kept)
@@ -266,7 +267,7 @@ def test_a_plan_that_keeps_objects_apart_shoves_none_where_the_papers_plan_does(
 
 def on_the_robot(name: str) -> Scenario:
     """A built-in scenario as ``dualarm-mpc simulate`` runs it."""
-    return load_scenario(name, on_robot(load_scenario(name)))
+    return load_scenario(name, on_robot=True)
 
 
 @pytest.mark.slow

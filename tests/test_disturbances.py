@@ -19,15 +19,16 @@ from dualarm_mpc.model.scenario import (
     Task,
     apply_overrides,
     load_scenario,
+    on_robot_overrides,
 )
 from dualarm_mpc.sim import disturbances as dist
-from dualarm_mpc.sim.closed_loop import on_robot, simulate
+from dualarm_mpc.sim.closed_loop import simulate
 from dualarm_mpc.sim.disturbances import World
 
 
 def vd(rule: int = 1, seed: int = 0) -> Scenario:
     base = load_scenario("table1_vd")
-    return load_scenario("table1_vd", {**on_robot(base), "rule": rule, "seed": seed})
+    return load_scenario("table1_vd", {**on_robot_overrides(base), "rule": rule, "seed": seed})
 
 
 def world(sc: Scenario, t: float = 10.0, grasp: np.ndarray | None = None,

@@ -40,11 +40,11 @@ def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monk
     from dualarm_mpc.cli import process
 
     monkeypatch.setattr(process, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
-    from dualarm_mpc.planning import sequential
+    from dualarm_mpc.planning import task
 
     def slow_first_step(scenario, options, progress, tried):  # a step longer than a 0.1 s tick
         return transport(scenario, options, lambda seg: (time.sleep(0.5), progress(seg)), tried)
 
-    monkeypatch.setattr(sequential, "transport", slow_first_step)
+    monkeypatch.setattr(task, "transport", slow_first_step)
     assert cli.main(["plan", "table1_vd", "--seed", "1", "--set", "random_objects.count: 4"]) == 0
     assert "still searching step 1:" in capsys.readouterr().out

@@ -19,6 +19,7 @@ import logging
 import os
 import sys
 
+from dualarm_mpc import __version__
 from dualarm_mpc.cli.arguments import (
     Once,
     directory,
@@ -45,6 +46,7 @@ def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dualarm-mpc", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("-v", "--verbose", action="store_true")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("check", help="decide whether the task, the rules and the bounds admit a "
                        "plan; name each conflict (exit 3)")

@@ -4,7 +4,6 @@ exit code (the table in :mod:`dualarm_mpc.cli.app`)."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ from dualarm_mpc.cli.process import (
     signal_name,
     stopped,
 )
-from dualarm_mpc.model.scenario import load_scenario, merge_overrides
+from dualarm_mpc.model.scenario import load_scenario
 
 
 def _objects_left(scenario) -> int:
@@ -60,12 +59,12 @@ def _check(scenario, joint: bool, file=None):
     return report
 
 
-def _load(args: argparse.Namespace, overrides: bool = True):
-    """The scenario of the command line (with the flags' overrides); nothing to keep if a
-    signal stops it."""
-    return interruptible(lambda: load_scenario(args.scenario,
-                                                scenario_overrides(args) if overrides else None),
-                          tick=heartbeat("reading the scenario"))
+def _load(args: argparse.Namespace, first: dict | None = None, on_robot: bool = False):
+    """The scenario of the command line: ``first`` (overrides the flags may override), then the
+    flags' overrides; nothing to keep if a signal stops it."""
+    overrides = [first or {}, scenario_overrides(args)]
+    return interruptible(lambda: load_scenario(args.scenario, overrides, on_robot=on_robot),
+                         tick=heartbeat("reading the scenario"))
 
 
 def cmd_check(args: argparse.Namespace) -> int:
@@ -105,10 +104,10 @@ def _failed_writes(code: int, written: bool) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from dualarm_mpc.milp.horizon import HorizonProgram, solve_options
+    from dualarm_mpc.milp.horizon import HorizonProgram
     from dualarm_mpc.milp.solver import Interrupt
-    from dualarm_mpc.model.verify import verify
-    from dualarm_mpc.planning.sequential import PlanningError, transport
+    from dualarm_mpc.planning.sequential import PlanningError
+    from dualarm_mpc.planning.task import VerificationError, plan
 
     scenario = _load(args)
     task = scenario.task
@@ -167,10 +166,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
                   f"{res.status.value:<10} {res.solve_time_s:>9.2f}{by}", flush=True)
 
     stop = Interrupt()
-    options = dataclasses.replace(solve_options(scenario), interrupt=stop)
+    problems: list[str] = []
     try:
-        result = interruptible(lambda: transport(scenario, options, progress, tried), stop,
-                                heartbeat)
+        result = interruptible(lambda: plan(scenario, check_first=False, progress=progress,
+                                            on_try=tried, stop=stop), stop, heartbeat)
+    except VerificationError as err:
+        result, problems = err.plan, err.problems
     except PlanningError as err:
         print(f"error: {err}", file=sys.stderr)
         written = err.partial is None or not err.partial.segments or \
@@ -178,24 +179,19 @@ def cmd_plan(args: argparse.Namespace) -> int:
         return _failed_writes(CONFLICT if err.proven else FAILED,
                               _exported(export, args) and written)
     exported = _exported(export, args)
-    try:
-        check = verify(scenario, result)
-    except KeyboardInterrupt:  # a signal while verifying: the plan is written, not verified
-        check = None
-    result = dataclasses.replace(result, verified=check is not None and check.ok)
     resting = sum(d is not None for d in result.delivered_step)
     already = f" ({scenario.n_objects - left} already there)" if left < scenario.n_objects else ""
     print(f"total: {resting}/{scenario.n_objects} resting in their goals{already}, cost "
           f"{result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
           f"(CPU {result.total_cpu_time_s:.2f} s)")
     written = _save_plan(result, args, scenario) and exported
-    if result.partial or check is None:
+    if stop.is_set():  # a signal: planning stopped, or verification was not waited for
         print(f"interrupted by {signal_name()} after {len(result.segments)} step(s): what was "
-              "written is partial"
-              + ("" if check is not None else " and not verified"), file=sys.stderr)
+              "written is " + ("partial" if result.partial else "whole")
+              + ("" if result.verified else " and not verified"), file=sys.stderr)
         return stopped()
-    if not check.ok:
-        print("error: the plan fails verification:\n  " + "\n  ".join(check.problems),
+    if problems:
+        print("error: the plan fails verification:\n  " + "\n  ".join(problems),
               file=sys.stderr)
         return FAILED
     print("verified: the replayed trace satisfies every step's specification; "
@@ -235,15 +231,11 @@ def _output_of(args: argparse.Namespace, flag: str) -> outputs.Output | None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from dualarm_mpc.model.scenario import apply_overrides
-    from dualarm_mpc.sim.closed_loop import check_events, on_robot, simulate
+    from dualarm_mpc.sim.closed_loop import check_events, simulate
 
-    base = _load(args, overrides=False)
-    overrides = on_robot(base)
-    if args.realtime or args.meshcat:  # before the flags: --set 'solver.realtime: false' wins
-        merge_overrides(overrides, {"solver": {"realtime": True}})
-    merge_overrides(overrides, scenario_overrides(args))
-    scenario = apply_overrides(base, overrides)
+    # before the flags: --set 'solver.realtime: false' wins
+    realtime = {"solver": {"realtime": True}} if args.realtime or args.meshcat else None
+    scenario = _load(args, realtime, on_robot=True)
     check_events(scenario, args.duration)
     print(f"{scenario.name}: closed loop, {scenario.n_objects} objects, rule {scenario.task.rule}, "
           f"(m_o, n_o) = ({scenario.task.m_o}, {scenario.task.n_o})")

@@ -23,6 +23,7 @@ import re
 import reprlib
 import types
 import typing
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -374,7 +375,8 @@ class Task:
 @dataclass
 class Scenario:
     """Everything the planner and the simulation need; units are metres, seconds and Δt steps.
-    The YAML names each field flat (``max_speed``, not ``robot.max_speed``): :data:`YAML_FIELDS`."""
+    The YAML names each field flat (``max_speed``, not ``robot.max_speed``):
+    :data:`~dualarm_mpc.model.scenario.YAML_FIELDS`."""
 
     name: str = "scenario"
     robot: Robot = field(default_factory=Robot)
@@ -402,8 +404,8 @@ class Scenario:
         self._check_reach()
 
     def check_ranges(self) -> None:
-        """Every number in its field's :class:`Range` and every text at most MAX_TEXT_CHARS long
-        (before anything computes with them)."""
+        """Every number in its field's :class:`~dualarm_mpc.model.scenario.Range` and every text at
+        most MAX_TEXT_CHARS long (before anything computes with them)."""
         for key, path in YAML_FIELDS.items():
             owner, name = _owner(self, path)
             rng = _fields(type(owner))[name].metadata.get("range")
@@ -435,8 +437,8 @@ class Scenario:
                     f"from its goal {o.goal}: raise dt, max_speed or solver.max_horizon")
 
 
-# The scenario file is one flat mapping: each key and the field it sets. The loader reads the file
-# through this table only, so the file format and the error paths are the YAML keys.
+#: The scenario file is one flat mapping: each key and the field it sets. The loader reads the
+#: file through this table only, so the file format and the error paths are the YAML keys.
 YAML_FIELDS = {
     "name": "name",
     "dt": "robot.dt",
@@ -685,8 +687,31 @@ def scenario_path(name_or_path: str) -> Path:
     return path
 
 
-def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Scenario:
-    """Load a scenario file, apply ``overrides`` (a mapping or YAML text), then validate it."""
+# On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
+# object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
+# slots one object in ten was knocked short of its goal, beyond reach); and objects have extent:
+# one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C3); without,
+# the boxes of `make demo` touched in 4 pairs, a dragged one shoving another 8 cm). 1 cm is what
+# the slots leave between neighbours (2·goal_margin − object_size).
+ON_ROBOT = {"delivery": "rest", "goal_margin": 0.03, "goal_slots": True, "object_clearance": 0.01}
+
+
+def on_robot_overrides(scenario: Scenario) -> dict:
+    """The overrides that make ``scenario`` fit for the robot (what ``load_scenario(...,
+    on_robot=True)`` applies): ``ON_ROBOT``, and random objects drawn at least a box apart (plus
+    2 cm), since physical boxes cannot overlap."""
+    extra = {}
+    if scenario.task.random_objects is not None:
+        extra["random_objects"] = {"min_separation": scenario.table.object_size + 0.02}
+    return {**ON_ROBOT, **extra}
+
+
+def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict] | None = None, *,
+                  on_robot: bool = False) -> Scenario:
+    """Load a scenario file (a path, or ``table1_vc`` / ``table1_vd``), apply ``overrides``, then
+    validate it. ``overrides``: a mapping, YAML text, or several YAML texts applied in order (as
+    ``--set`` flags are). ``on_robot``: first the overrides that fit the task to the robot
+    (:func:`on_robot_overrides`, what ``simulate`` uses); ``overrides`` come after them and win."""
     path = scenario_path(name_or_path)
     try:
         with path.open(encoding="utf-8") as file:
@@ -698,7 +723,16 @@ def load_scenario(name_or_path: str, overrides: dict | str | None = None) -> Sce
         raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
     data = _yaml(text, str(path))
     _one_source_of_objects(data, drawn=False, listed=0)
-    return apply_overrides(_build_scenario(data), overrides)
+    base = _build_scenario(data)
+    if not on_robot and (overrides is None or isinstance(overrides, dict | str)):
+        return apply_overrides(base, overrides)
+    merged = on_robot_overrides(base) if on_robot else {}
+    texts = [overrides] if isinstance(overrides, dict | str) else list(overrides or [])
+    for k, extra in enumerate(texts):
+        if isinstance(extra, str):
+            extra = parse_override(extra, f"override {k + 1} ({extra!r})")
+        merge_overrides(merged, _paths(extra))
+    return apply_overrides(base, merged)
 
 
 def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:

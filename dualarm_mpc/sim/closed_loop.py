@@ -31,27 +31,15 @@ from dualarm_mpc.sim import recording
 from dualarm_mpc.sim.diagram import DualArm, MakeDiagram
 from dualarm_mpc.sim.disturbances import Disturbance, World, knock, move_goal
 
-# On the robot, "delivered" means at rest in the goal; the planner aims a little inside it, each
-# object at its own slot, so that later throws do not knock earlier ones (measured on §V-C: without
-# slots one object in ten was knocked short of its goal, beyond reach); and objects have extent:
-# one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C3); without,
-# the boxes of `make demo` touched in 4 pairs, a dragged one shoving another 8 cm). 1 cm is what
-# the slots leave between neighbours (2·goal_margin − object_size).
-ON_ROBOT = {"delivery": "rest", "goal_margin": 0.03, "goal_slots": True, "object_clearance": 0.01}
-
-
-def on_robot(scenario: Scenario) -> dict:
-    """The overrides that make ``scenario`` fit for the robot: ``ON_ROBOT``, and random objects
-    drawn at least a box apart (plus 2 cm), since physical boxes cannot overlap."""
-    extra = {}
-    if scenario.task.random_objects is not None:
-        extra["random_objects"] = {"min_separation": scenario.table.object_size + 0.02}
-    return {**ON_ROBOT, **extra}
 SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
 
 
 @dataclass(frozen=True)
 class Summary:
+    """A closed-loop run as its summary JSON keeps it (``--summary``, docs/formats.md): where
+    every object ended and when it was delivered, every replan, the clearances and contacts
+    sampled over the run. :meth:`save` writes it."""
+
     mode: str  # "lockstep" or "realtime" (``solver.realtime``)
     replan_latency_s: float  # simulated time from a replan to its plan in force
     goals: dict[str, list[float]]

@@ -1,0 +1,69 @@
+"""A task's plan as the library gives it: the consistency check, sequential transportation
+(Algorithm 1) and the verification every plan passes, in one call (``dualarm_mpc.plan``; the
+``plan`` command prints what this returns)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+from dualarm_mpc.milp.horizon import solve_options
+from dualarm_mpc.milp.solver import Interrupt
+from dualarm_mpc.model.plan import Plan, Segment
+from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning.consistency import Report, check
+from dualarm_mpc.planning.sequential import HorizonTried, PlanningError, transport
+
+__all__ = ["ConflictError", "VerificationError", "plan"]
+
+
+class ConflictError(PlanningError):
+    """The consistency check proved that the task, the rules and the bounds admit no plan;
+    ``report.conflicts`` names each conflict (which objects, which rules, why)."""
+
+    def __init__(self, report: Report) -> None:
+        super().__init__("; ".join(map(str, report.conflicts)), proven=True)
+        self.report = report
+
+
+class VerificationError(PlanningError):
+    """The plan, replayed through the model, breaks its specification: ``problems`` say where.
+    ``plan`` is the plan itself (``verified`` false), kept for inspection."""
+
+    def __init__(self, plan: Plan, problems: list[str]) -> None:
+        super().__init__("the plan fails verification: " + "; ".join(problems), plan)
+        self.plan = plan
+        self.problems = problems
+
+
+def plan(scenario: Scenario, *, check_first: bool = True,
+         progress: Callable[[Segment], None] | None = None,
+         on_try: Callable[[HorizonTried], None] | None = None,
+         stop: Interrupt | None = None) -> Plan:
+    """Plan every object of ``scenario`` into its goal and verify the plan (re-simulated through
+    the model, each step's LTL checked by the independent evaluator).
+
+    ``check_first``: run the consistency check (without its joint step) first and raise
+    :class:`ConflictError` on a conflict. ``progress`` hears of each sequential step,
+    ``on_try`` of each horizon tried. ``stop``, once set (from another thread), ends the search:
+    the steps planned so far come back as a partial plan (``partial``), not verified.
+
+    Raises :class:`~dualarm_mpc.planning.sequential.PlanningError` when a step has no plan
+    (``proven``: none exists up to the horizon cap), :class:`VerificationError` when the plan
+    fails verification. Returns the plan with ``verified`` true otherwise."""
+    if check_first:
+        report = check(scenario, joint=False)
+        if report.conflicts:
+            raise ConflictError(report)
+    options = solve_options(scenario)
+    if stop is not None:
+        options = dataclasses.replace(options, interrupt=stop)
+    result = transport(scenario, options, progress, on_try)
+    if result.partial or (stop is not None and stop.is_set()):
+        return result
+    verification = verify(scenario, result)
+    result = dataclasses.replace(result, verified=verification.ok)
+    if not verification.ok:
+        raise VerificationError(result, verification.problems)
+    return result
