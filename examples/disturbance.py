@@ -7,74 +7,67 @@ Context between two ``AdvanceTo`` calls, never inside the Simulator's monitor, w
 next replan and still delivers every object. Lockstep, as ``simulate`` runs by default: the run
 is the same on any machine.
 
-    python examples/disturbance.py
+    python examples/disturbance.py   (writes its replay to out/disturbance.html)
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import Simulator, SimulatorStatus
 from pydrake.systems.framework import EventStatus
 
-from dualarm_mpc.model.mld import REST_SPEED, delivered_objects
-from dualarm_mpc.model.scenario import load_scenario, merge_overrides
-from dualarm_mpc.sim.closed_loop import on_robot
-from dualarm_mpc.sim.diagram import MakeDiagram
-from dualarm_mpc.sim.disturbances import knock, move_goal
+import dualarm_mpc as dm
 
 KNOCK_T, KNOCK_TO = 4.0, [-0.15, 0.05]  # s, m: object1 lands here
 MOVE_T, RED = 8.0, [0.3, 0.6, 0.3, 0.6]  # s, the red goal's new box
 END_T = 60.0
+REPLAY = Path("out/disturbance.html")
 
 
 def main() -> None:
-    task = {"seed": 2, "random_objects": {"count": 2}}
-    base = load_scenario("table1_vd", task)
-    overrides = on_robot(base)  # the robot's settings (at rest in the goal, a margin inside it)
-    merge_overrides(overrides, task)
-    scenario = load_scenario("table1_vd", overrides)
-    dual = MakeDiagram(scenario)
-    simulator = Simulator(dual.diagram)
-    root = simulator.get_mutable_context()
+    # the robot's settings (at rest in the goal, a margin inside it), then this task's
+    scenario = dm.load_scenario("table1_vd", {"seed": 2, "random_objects": {"count": 2}},
+                                on_robot=True)
+    meshcat = Meshcat(MeshcatParams(port=0))  # no browser: the run is recorded for the replay
+    with dm.MakeDiagram(scenario, meshcat) as dual:
+        simulator = Simulator(dual.diagram)
+        root = simulator.get_mutable_context()
 
-    def knock_object1(context) -> None:  # out of the hand, if it holds it
-        knock(dual, context, 0, KNOCK_TO)
-        print(f"t = {context.get_time():4.1f} s: object1 knocked to {KNOCK_TO}")
+        def knock_object1(context) -> None:  # out of the hand, if it holds it
+            dm.knock(dual, context, 0, KNOCK_TO)
+            print(f"t = {context.get_time():4.1f} s: object1 knocked to {KNOCK_TO}")
 
-    def move_red(context) -> None:
-        move_goal(dual, context, "red", RED)
-        print(f"t = {context.get_time():4.1f} s: the red goal moved to {RED}")
+        def move_red(context) -> None:
+            dm.move_goal(dual, context, "red", RED)
+            print(f"t = {context.get_time():4.1f} s: the red goal moved to {RED}")
 
-    def monitor(context) -> EventStatus:  # looks only
-        if context.get_time() > MOVE_T and all(_delivered(scenario, dual, context)):
-            return EventStatus.ReachedTermination(None, "every object at rest in its goal")
-        return EventStatus.Succeeded()
+        def monitor(context) -> EventStatus:  # looks only
+            if context.get_time() > MOVE_T and dual.delivered(context).all():
+                return EventStatus.ReachedTermination(None, "every object at rest in its goal")
+            return EventStatus.Succeeded()
 
-    simulator.set_monitor(monitor)
-    for t, change in ((KNOCK_T, knock_object1), (MOVE_T, move_red), (END_T, None)):
-        status = simulator.AdvanceTo(t)
-        if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
-            break
-        if change is not None:
-            change(root)
-    dual.planner.close()
-    t = root.get_time()
+        simulator.set_monitor(monitor)
+        simulator.Initialize()
+        meshcat.StartRecording(frames_per_second=32.0, set_visualizations_while_recording=False)
+        for t, change in ((KNOCK_T, knock_object1), (MOVE_T, move_red), (END_T, None)):
+            status = simulator.AdvanceTo(t)
+            if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                break
+            if change is not None:
+                change(root)
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+        REPLAY.parent.mkdir(parents=True, exist_ok=True)
+        REPLAY.write_text(meshcat.StaticHtml())
+        ok = dual.delivered(root)
     names = [o.name for o in scenario.task.objects]
-    ok = _delivered(scenario, dual, root)
-    print(f"t = {t:4.1f} s: " + ", ".join(f"{n} {'in' if k else 'NOT in'} its goal"
-                                          for n, k in zip(names, ok, strict=True)))
-    if not all(ok):
+    print(f"t = {root.get_time():4.1f} s: " + ", ".join(
+        f"{n} {'in' if k else 'NOT in'} its goal" for n, k in zip(names, ok, strict=True)))
+    print(f"wrote {REPLAY} (open it in a browser: it plays the run)")
+    if not ok.all():
         raise SystemExit(1)
-
-
-def _delivered(scenario, dual, context) -> list[bool]:
-    """Each object at rest (the robot's tolerance) inside its goal, as the goals are now."""
-    plant = dual.station.plant
-    pc = plant.GetMyContextFromRoot(context)
-    boxes = dual.goals.goals(dual.goals.GetMyContextFromRoot(context))
-    pos = [plant.EvalBodyPoseInWorld(pc, b).translation()[:2] for b in dual.station.objects]
-    vel = [plant.EvalBodySpatialVelocityInWorld(pc, b).translational()
-           for b in dual.station.objects]
-    return delivered_objects(scenario, pos, vel, REST_SPEED, boxes).tolist()
 
 
 if __name__ == "__main__":

@@ -11,9 +11,9 @@ import pytest
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 
 
-def run(script: str, *args: str) -> str:
+def run(script: str, *args: str, cwd: Path | None = None) -> str:
     done = subprocess.run([sys.executable, str(EXAMPLES / script), *args], capture_output=True,
-                          text=True, timeout=600)
+                          text=True, timeout=600, cwd=cwd)
     assert done.returncode == 0, done.stderr
     return done.stdout
 
@@ -26,7 +26,9 @@ def test_custom_rule_plans_verifies_and_plots(tmp_path) -> None:
 
 
 @pytest.mark.slow
-def test_disturbance_knocks_moves_a_goal_and_still_delivers() -> None:
-    out = run("disturbance.py")
+def test_disturbance_knocks_moves_a_goal_and_still_delivers(tmp_path) -> None:
+    out = run("disturbance.py", cwd=tmp_path)
     assert "object1 knocked" in out and "the red goal moved" in out
     assert "object1 in its goal, object2 in its goal" in out
+    replay = (tmp_path / "out" / "disturbance.html").read_text()
+    assert replay.rstrip().endswith("</html>") and "animation" in replay

@@ -17,9 +17,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 from pydrake.geometry import Meshcat
-from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 
+from dualarm_mpc.model.mld import REST_SPEED, delivered_objects
 from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.planning.mpc import Solve
 from dualarm_mpc.sim.station import AddControlStack, AddStation, ControlStack, Station
@@ -43,12 +45,24 @@ class DualArm:
     hand_clearance: Clearance  # between the hands and the objects
     goals: GoalSource
     object_contacts: ObjectContacts  # pairs of objects that touched while one moved
+    scenario: Scenario  # what it was built for
 
     def __enter__(self) -> DualArm:
         return self
 
     def __exit__(self, *exc) -> None:
         self.planner.close()
+
+    def delivered(self, context: Context) -> np.ndarray:
+        """(N,) bool: each object at rest on the plant (``REST_SPEED``) inside its goal as the
+        goals are now (a moved goal counts), at the root ``context``'s time."""
+        plant = self.station.plant
+        pc = plant.GetMyContextFromRoot(context)
+        pos = [plant.EvalBodyPoseInWorld(pc, b).translation()[:2] for b in self.station.objects]
+        vel = [plant.EvalBodySpatialVelocityInWorld(pc, b).translational()
+               for b in self.station.objects]
+        boxes = self.goals.goals(self.goals.GetMyContextFromRoot(context))
+        return delivered_objects(self.scenario, pos, vel, REST_SPEED, boxes)
 
 
 def _export(builder: DiagramBuilder, station: Station, stack: ControlStack,
@@ -105,4 +119,4 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     diagram = builder.Build()
     diagram.set_name("dualarm_mpc")
     return DualArm(diagram, station, stack, planner, clearance, hand_clearance, goals,
-                   contacts_seen)
+                   contacts_seen, scenario)
