@@ -25,7 +25,6 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource, VectorLogSink
 
 import dualarm_mpc as dm
-from dualarm_mpc.model.scenario import load_scenario  # interim, until dm.load_scenario lands
 
 # One object on the robot, §V-D's bounds (|v| ≤ 0.2 m/s, |u| ≤ 0.1 m/s²), Δt = 1 s: the right
 # hand fetches it from (0.1, 0.1) and carries it into red.
@@ -56,7 +55,7 @@ TRAJECTORIES = ("hand_trajectory", "object_trajectory", "grasp_schedule")  # the
 
 
 def scenario(**solver) -> dm.Scenario:
-    return load_scenario("table1_vc", {**SCENE, "solver": solver} if solver else SCENE)
+    return dm.load_scenario("table1_vc", {**SCENE, "solver": solver} if solver else SCENE)
 
 
 class Run:
@@ -231,8 +230,7 @@ def solve(scenario, state, spec, T, options, start=None):
         time.sleep(0.01)
     raise RuntimeError("stopped")
 
-from dualarm_mpc.model.scenario import load_scenario  # interim, until dm.load_scenario lands
-sc = load_scenario("table1_vc", {scene!r})
+sc = dm.load_scenario("table1_vc", {scene!r})
 dual = dm.MakeDiagram(sc, solve=solve)
 simulator = Simulator(dual.diagram)
 simulator.AdvanceTo(0.5)
