@@ -61,6 +61,17 @@ def test_modules_import_only_from_lower_layers() -> None:
     assert not wrong, "imports against the layers of docs/README.md: " + "; ".join(wrong)
 
 
+LONG = 500  # lines: a longer module says why it is one module (issue 48)
+
+
+def test_a_long_module_says_why_it_is_one() -> None:
+    unexplained = sorted(str(p.relative_to(ROOT)) for p in PACKAGE.rglob("*.py")
+                         if len(p.read_text().splitlines()) > LONG
+                         and "Why one module" not in (ast.get_docstring(ast.parse(p.read_text()))
+                                                      or ""))
+    assert not unexplained, f"over {LONG} lines without 'Why one module': {unexplained}"
+
+
 def test_no_import_cycle() -> None:
     graph = imports()
     state: dict[str, int] = {}  # 1: on the path, 2: done

@@ -10,6 +10,10 @@ mapping (the CLI's ``--set``), whose keys may be paths in the form errors are re
 'abc'``. Text is read by YAML 1.2's core schema (``yamlcore``). Every number field carries its
 :class:`Range` (docs/scenarios.md lists them), checked before anything else; the caps
 (``MAX_*``) bound the work a scenario can ask for.
+
+Why one module of this length: the loader reads only through the dataclasses' own type hints,
+ranges and :data:`YAML_FIELDS`; split, a field, its key, its range and its check would live in
+two files that must change together.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ hand-over). The node's program is the monolithic one with η_ij(k ≥ 1) = 0 out
 and φ_task replaced by "every j ∈ D delivered": a restriction, so its optimum is never below the
 monolithic one. The nodes cover every plan (:class:`Skeleton`): a plan delivers some D, the
 hands it uses on D are within some h, and objects outside D can be left untouched without
-changing cost or any rule — which :func:`spec.untouchable` proves per rule instance by partial
-evaluation; objects where that proof fails, and objects held now, stay free. Of the nodes with
-hand-overs only the widest per D is searched: it covers the others.
+changing cost or any rule — which :func:`~dualarm_mpc.model.spec.untouchable` proves per rule
+instance by partial evaluation; objects where that proof fails, and objects held now, stay free. Of
+the nodes with hand-overs only the widest per D is searched: it covers the others.
 
 *Bounds* (``relaxations.py``): the one-hand relaxations c_i(S_i) of a node's shares, summed,
 and c(j) of an object handed over, bound the node from below.
@@ -29,6 +29,10 @@ re-simulation and direct LTL evaluation (``evaluate.py``, which shares no code w
 encoder): if it passes, the node's optimum is the sum; otherwise the best plan with the same
 grasps, and failing that the joint node program, is solved. It stops when the incumbent is no
 worse than every open bound.
+
+Why one module of this length: the skeleton, the feasibility pass and the best-first optimiser
+are one search's phases over the same nodes and the same relaxation store, each its own class of
+under 170 lines, kept side by side so that the search reads in the order it runs.
 """
 
 from __future__ import annotations
@@ -165,8 +169,8 @@ def compose(programs: StepPrograms, store: RelaxationStore, node: Node, exact: b
 
 
 def joint(programs: StepPrograms, store: RelaxationStore, node: Node, **kw) -> StepResult:
-    """The node's own program (:meth:`StepPrograms.joint`), each hand's cost floored at the
-    bound the store proves for its share."""
+    """The node's own program (:meth:`~dualarm_mpc.search.subprograms.StepPrograms.joint`), each
+    hand's cost floored at the bound the store proves for its share."""
     return programs.joint(node, store.floor(node), **kw)
 
 
@@ -594,11 +598,11 @@ def search_step(scenario: Scenario, state: State, spec: Specification, horizon: 
                 options: SolveOptions | None = None,
                 below: dict[Key, StepResult] | None = None,
                 incumbent: StepResult | None = None) -> StepResult:
-    """The skeleton search of one horizon; the same optimum as :func:`horizon.solve_step`.
-    ``below``: the relaxations with a plan at ``horizon − 1`` (``RelaxationStore.below``),
-    replaced by this horizon's, for the next horizon of the same step. ``incumbent``: a plan of
-    the horizon known already (the step's no-throw witness), the optimisation's first
-    incumbent and cutoff: only cheaper plans are searched for."""
+    """The skeleton search of one horizon; the same optimum as
+    :func:`~dualarm_mpc.milp.horizon.solve_step`. ``below``: the relaxations with a plan at
+    ``horizon − 1`` (``RelaxationStore.below``), replaced by this horizon's, for the next horizon of
+    the same step. ``incumbent``: a plan of the horizon known already (the step's no-throw witness),
+    the optimisation's first incumbent and cutoff: only cheaper plans are searched for."""
     t0 = time.perf_counter()
     with _searching(scenario, state, spec, horizon, options, below) as search:
         found = search.feasible()
