@@ -16,10 +16,10 @@ import re
 import yaml
 from yaml.nodes import MappingNode, ScalarNode, SequenceNode
 
-# A scenario is a few kilobytes; a thousand objects take about 60 kB. The cap bounds the text
-# given and the text its aliases expand to (each alias counts as a copy of what it points to).
+#: A scenario is a few kilobytes; a thousand objects take about 60 kB. The cap bounds the text
+#: given and the text its aliases expand to (each alias counts as a copy of what it points to).
 MAX_CHARS = 1_000_000
-MAX_DEPTH = 20  # a scenario nests 4 levels (events[0].box[0]); the cap keeps walks shallow
+MAX_DEPTH = 20  #: a scenario nests 4 levels (events[0].box[0]); the cap keeps walks shallow
 
 
 class YAMLInputError(ValueError):

@@ -388,8 +388,9 @@ def solve(prog: MathematicalProgram, options: SolveOptions | None = None,
 
 def solve_standard_form(f: StandardForm, options: SolveOptions,
                         start: Start | None = None) -> SolveResult:
-    """Solve ``f`` with ``options.backend``; raises :class:`SolverUnavailable` when that backend
-    cannot (unknown, not installed, unlicensed, the model over its licence's size limit)."""
+    """Solve ``f`` with ``options.backend``; raises
+    :class:`~dualarm_mpc.milp.solver.SolverUnavailable` when that backend cannot (unknown, not
+    installed, unlicensed, the model over its licence's size limit)."""
     require_backend(options.backend)
     t0 = time.perf_counter()
     out = ADAPTERS[options.backend](f, options, _start(f, start))

@@ -80,7 +80,8 @@ SEED = 0  # CP-SAT's random seed: the same answer on every run
 
 
 def require() -> None:
-    """Raise :class:`SolverUnavailable` (one line) unless OR-Tools is installed."""
+    """Raise :class:`~dualarm_mpc.milp.solver.SolverUnavailable` (one line) unless OR-Tools is
+    installed."""
     if not ortools_installed():
         raise SolverUnavailable("the CP-SAT prover needs OR-Tools, which is not installed here "
                                 "(pip install 'dualarm_mpc[ortools]', or solver.prover: none)")

@@ -312,7 +312,7 @@ class HorizonProgram:
               relaxed: bool = False, apart: frozenset[tuple[int, int]] = frozenset(),
               **narrow) -> StepResult:
         """Solve ``spec`` (narrowed as in :meth:`standard_form`, with the (C1)–(C2) rows its
-        solutions need, from those of the pairs ``apart`` on: :meth:`_solve_apart`); the
+        solutions need, from those of the pairs ``apart`` on: :meth:`!_solve_apart`); the
         trajectory is re-simulated from the solver's forces and grasps through the model (so
         it is exactly the model's, not the solver's rounding). The cost is that of the costed
         hands."""

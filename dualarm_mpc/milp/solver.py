@@ -125,6 +125,7 @@ class Interrupt:
                 cancel()
 
     def is_set(self) -> bool:
+        """Whether a stop was requested."""
         return self._set
 
     @contextmanager

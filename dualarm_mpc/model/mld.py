@@ -97,7 +97,8 @@ def delivered_objects(scenario: Scenario, pos: np.ndarray, vel: np.ndarray,
                       speed: float = REST_TOL, goals: dict[str, list[float]] | None = None
                       ) -> np.ndarray:
     """(N,) whether each object, at ``pos`` (N, 2) moving at ``vel`` (N, 2 or 3), is
-    :func:`delivered` in its goal (``goals``: the scenario's unless given)."""
+    :func:`~dualarm_mpc.model.mld.delivered` in its goal (``goals``: the scenario's unless
+    given)."""
     goals = scenario.task.goals if goals is None else goals
     return np.array([bool(delivered(pos[j], vel[j], goals[o.goal], speed))
                      for j, o in enumerate(scenario.task.objects)], dtype=bool)

@@ -98,6 +98,7 @@ class Segment:
     shorter_plan: list | None = None
 
     def to_json(self) -> dict:
+        """The step as an entry of the plan file's ``segments`` (docs/formats.md)."""
         return {
             "objects": self.objects,
             "delivered": self.delivered,

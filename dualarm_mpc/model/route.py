@@ -176,7 +176,7 @@ class _Release:
     half: float
 
 
-Visit = tuple[Slab, ...] | _Grab | _Release  # a union of slabs on the hand, or a change of frame
+Visit = tuple[Slab, ...] | _Grab | _Release  #: a union of slabs on the hand, or a change of frame
 
 
 def _enter(visit: Visit, poly: Polygon) -> Polygon:

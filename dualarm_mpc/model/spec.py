@@ -256,10 +256,11 @@ def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str
 
 
 def check_rule(f: Formula, scenario: Scenario, where: str) -> int:
-    """A user rule the planner can use, else :class:`ScenarioError` naming ``where``: known
-    atoms over the scenario's hands and objects, no goal atom under a negation, no more object
-    placeholders than a step has objects (the rule would expand to nothing) and an expansion of
-    at most ``MAX_RULE_INSTANCES``. Returns the size of that expansion in formula nodes."""
+    """A user rule the planner can use, else :class:`~dualarm_mpc.model.scenario.ScenarioError`
+    naming ``where``: known atoms over the scenario's hands and objects, no goal atom under a
+    negation, no more object placeholders than a step has objects (the rule would expand to nothing)
+    and an expansion of at most ``MAX_RULE_INSTANCES``. Returns the size of that expansion in
+    formula nodes."""
     n = scenario.n_objects
     for atom in sorted(atoms(f), key=str):
         problem = _atom_problem(atom, n)

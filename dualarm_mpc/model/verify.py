@@ -1,9 +1,9 @@
 """Verification: replay a plan through the model and check its LTL specification on the trace.
 
-The oracle for every plan: :func:`mld.replay` replays the planned forces and grasps, the atoms
-are read off the simulated trace exactly (θ_j(k) is "object j inside its goal box", two-sided),
-and each sequential step's specification is evaluated by ``evaluate.py`` — code that shares
-nothing with the MILP encoder.
+The oracle for every plan: :func:`~dualarm_mpc.model.mld.replay` replays the planned forces and
+grasps, the atoms are read off the simulated trace exactly (θ_j(k) is "object j inside its goal
+box", two-sided), and each sequential step's specification is evaluated by ``evaluate.py`` — code
+that shares nothing with the MILP encoder.
 """
 
 from __future__ import annotations

@@ -11,28 +11,28 @@ A conflict is reported only with a proof: every program whose infeasibility is r
 *relaxation* of the real one — the sequential step that would deliver the objects named, at
 some horizon up to ``solver.max_horizon`` — it may drop constraints, never add one:
 
-* **One object j** (:func:`_check_object`): the model over the hands and j alone, whose rows are
+* **One object j** (:func:`!_check_object`): the model over the hands and j alone, whose rows are
   the real step's rows over these variables (other objects enter the model only through the sums
   of (14)–(15), which fewer objects only loosen); φ_task "j delivered", which every step
-  delivering j implies; and the rule instances whose atoms all name j (:func:`spec.confined`).
-  An instance naming another object is dropped, never handed to the encoder, which would read
-  that object's atoms as constants (η false, θ its value now) — an instance such as ``F
-  eta[1,1]`` or ``F theta[1] | …`` would then be false in object 2's program although a step
-  over both can satisfy it. A plan of the real step, cut down to the hands and j, is a plan of
-  this program. If the first step delivers j (m_o covers every object of the step), the
-  program starts from this state; otherwise a later step may deliver j, with the hands starting
-  wherever the steps before left them (at rest, as the hands are now): the program lets them
-  start anywhere in their range (``hands_anywhere``), so it relaxes every such step too. What
-  it does not model is an earlier step that moves j without delivering it (possible when
-  m_o < n_o): j starts where it is now.
-* **Who holds it** (:func:`_cases`): the one-object program is solved as three restrictions —
+  delivering j implies; and the rule instances whose atoms all name j
+  (:func:`~dualarm_mpc.model.spec.confined`). An instance naming another object is dropped, never
+  handed to the encoder, which would read that object's atoms as constants (η false, θ its value
+  now) — an instance such as ``F eta[1,1]`` or ``F theta[1] | …`` would then be false in object 2's
+  program although a step over both can satisfy it. A plan of the real step, cut down to the hands
+  and j, is a plan of this program. If the first step delivers j (m_o covers every object of the
+  step), the program starts from this state; otherwise a later step may deliver j, with the hands
+  starting wherever the steps before left them (at rest, as the hands are now): the program lets
+  them start anywhere in their range (``hands_anywhere``), so it relaxes every such step too. What
+  it does not model is an earlier step that moves j without delivering it (possible when m_o < n_o):
+  j starts where it is now.
+* **Who holds it** (:func:`!_cases`): the one-object program is solved as three restrictions —
   hand 2 never holds j after now, hand 1 never does, both do at some time — whose plans together
   are exactly its plans; it is infeasible when all three are.
-* **Horizons** (:func:`_feasible`): where feasibility is monotone in T for the program itself
-  (:meth:`Specification.monotone_in_horizon`, on the relaxed rules), the largest horizon decides
-  every smaller one; otherwise every horizon from 1 up is tried, each against the real step at
-  the same horizon.
-* **The minimal rule set** (:func:`_minimal`, a deletion filter): each program it solves is the
+* **Horizons** (:func:`!_feasible`): where feasibility is monotone in T for the program itself
+  (:meth:`~dualarm_mpc.model.spec.Specification.monotone_in_horizon`, on the relaxed rules), the
+  largest horizon decides every smaller one; otherwise every horizon from 1 up is tried, each
+  against the real step at the same horizon.
+* **The minimal rule set** (:func:`!_minimal`, a deletion filter): each program it solves is the
   same program with fewer rules, hence a relaxation too, and the set it keeps is one proven
   infeasible: drop any one of its rules and the relaxed program has a plan.
 * **"Never held"** (the message only): the same program with the rules of the minimal set, no
@@ -47,7 +47,7 @@ The objects' spacing (``object_clearance``, (C1)–(C3)) is left out of every pr
 with the others standing where they are now would not be a relaxation (a step may move them out
 of its way first).
 
-For an object no plan can deliver, :func:`_reason` says why in plain words: the geometry (a goal
+For an object no plan can deliver, :func:`!_reason` says why in plain words: the geometry (a goal
 beyond the hands' reach) and what each rule of the minimal set forbids.
 """
 

@@ -25,7 +25,7 @@ from the measured state (Algorithm 1, one step at a time):
   on the machine;
 * a replan from exactly the state the plan in force reaches now, when that plan was proven
   optimal for the same step and goals, keeps it without a search ("kept"): by the principle of
-  optimality its rest is the replan's optimum (:meth:`Replanner._on_proven_plan`);
+  optimality its rest is the replan's optimum (:meth:`!Replanner._on_proven_plan`);
 * a solver time-out, an infeasible horizon or any error keeps the previous plan; every replan
   returns its record (:class:`Replan`: wall time, status, cost). Nothing raises.
 

@@ -39,6 +39,7 @@ class ReplanWorker:
         budget = scenario.solver.replan_budget_s
         self.budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
+        #: Real time: the search carried over to the next periods, if any.
         self.search: Search | None = None
 
     def start(self, solve: Callable[[Any], Any], job: Any) -> Future:

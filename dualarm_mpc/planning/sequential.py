@@ -81,9 +81,10 @@ def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon
                   incumbent: StepResult | None = None) -> StepResult:
     """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
     the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
-    is a MIP start for the monolithic MILP (:func:`horizon.solve_step`); ``below`` carries the
-    search's relaxations from one horizon to the next, and ``incumbent`` is a plan of the
-    horizon to start the search's optimisation from (:func:`search.search_step`)."""
+    is a MIP start for the monolithic MILP (:func:`~dualarm_mpc.milp.horizon.solve_step`); ``below``
+    carries the search's relaxations from one horizon to the next, and ``incumbent`` is a plan of
+    the horizon to start the search's optimisation from
+    (:func:`~dualarm_mpc.search.skeleton.search_step`)."""
     if scenario.solver.search == "monolithic":
         return solve_step(scenario, state, spec, horizon, options, start)
     return search_step(scenario, state, spec, horizon, options, below, incumbent)
@@ -93,7 +94,8 @@ def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> in
     """predictT: the smallest horizon the reachability bound does not rule out (§IV-C.2) — the
     m_o-th smallest step at which an object of the step can first be in its goal — or, where
     no-throw (18) holds for every object of the step, the route bound of the hands
-    (:func:`route.horizon_bound`) if larger: the horizons below either have no plan."""
+    (:func:`~dualarm_mpc.model.route.horizon_bound`) if larger: the horizons below either have no
+    plan."""
     objects = list(spec.objects)
     model = Model.from_scenario(scenario, objects)
     cap = scenario.solver.max_horizon
@@ -122,8 +124,8 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
               options: SolveOptions | None = None,
               on_try: Callable[[StepResult], None] | None = None) -> tuple[StepResult, float]:
     """Lines 4–6 of Algorithm 1 by the scenario's ``solver.horizons`` policy. Returns the
-    result (with :attr:`StepResult.minimal` and the witness's cost and horizon) and the step's
-    total solve time (wall time, everything included).
+    result (with :attr:`~dualarm_mpc.milp.horizon.StepResult.minimal` and the witness's cost and
+    horizon) and the step's total solve time (wall time, everything included).
 
     ``exact`` (:func:`first_plan`): from predictT, raise T until a plan is found. ``witness``
     (the skeleton search's default): first the no-throw witness (:func:`witness`), then
@@ -144,10 +146,10 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
 def witness(scenario: Scenario, state: State, spec: Specification,
             options: SolveOptions | None) -> StepResult | None:
     """The step's witness: the plan of ``spec`` with no-throw (18) for every object
-    (:func:`spec.with_no_throw`, a restriction: quick where ``spec`` allows relays), at its own
-    first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by the evaluator
-    (:func:`subprograms.satisfies`); None where ``spec`` has no-throw already, or the restriction
-    has no plan or none in time."""
+    (:func:`~dualarm_mpc.model.spec.with_no_throw`, a restriction: quick where ``spec`` allows
+    relays), at its own first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by
+    the evaluator (:func:`~dualarm_mpc.search.subprograms.satisfies`); None where ``spec`` has
+    no-throw already, or the restriction has no plan or none in time."""
     restricted = with_no_throw(spec)
     if restricted is None:
         return None
@@ -187,8 +189,9 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     of the budget, four times as much in the next round, so that one hard horizon does not
     take the time the others would be decided in. Beside the search, the second prover
     (:func:`second_prover`) tries to prove the horizons below T₁ that the search has left
-    undecided to have no plan. The step's horizon is proven minimal (:attr:`StepResult.minimal`)
-    when every horizon below it was proven to have no plan, by either."""
+    undecided to have no plan. The step's horizon is proven minimal
+    (:attr:`~dualarm_mpc.milp.horizon.StepResult.minimal`) when every horizon below it was proven to
+    have no plan, by either."""
     options = options or solve_options(scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
@@ -270,10 +273,11 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
     next ones).
 
     With the skeleton search and a specification whose feasibility is monotone in T
-    (:meth:`Specification.monotone_in_horizon`), once the step went ``CHECK_CAP_AFTER_S``
-    without a plan the largest one is checked by the search's relaxations alone
-    (:func:`search.horizon_ruled_out`, a few seconds at most): if they rule it out, no horizon
-    has a plan, and the conflict is diagnosed at once instead of after every horizon."""
+    (:meth:`~dualarm_mpc.model.spec.Specification.monotone_in_horizon`), once the step went
+    ``CHECK_CAP_AFTER_S`` without a plan the largest one is checked by the search's relaxations
+    alone (:func:`~dualarm_mpc.search.skeleton.horizon_ruled_out`, a few seconds at most): if they
+    rule it out, no horizon has a plan, and the conflict is diagnosed at once instead of after every
+    horizon."""
     t0 = time.perf_counter()
     cap = scenario.solver.max_horizon
     last = None
@@ -315,9 +319,9 @@ def second_prover(scenario: Scenario, state: State, spec: Specification,
                   options: SolveOptions, first_slice_s: float,
                   on_try: Callable[[StepResult], None] | None = None) -> Iterator:
     """The scenario's second prover (``solver.prover``) of the step's horizons, for the length
-    of a ``with``: :class:`cpsat.Prover` on the horizons' programs, each proof told to
-    ``on_try`` as an infeasible horizon at the end; or, with ``none``, one that proves nothing.
-    Never in a replan: ``mpc.py`` solves its horizons itself, in lockstep by counted work
+    of a ``with``: :class:`~dualarm_mpc.milp.cpsat.Prover` on the horizons' programs, each proof
+    told to ``on_try`` as an infeasible horizon at the end; or, with ``none``, one that proves
+    nothing. Never in a replan: ``mpc.py`` solves its horizons itself, in lockstep by counted work
     alone."""
     if scenario.solver.prover == "none":
         yield _NoProver()

@@ -69,7 +69,8 @@ RelaxationSolver = Callable[[StepPrograms, Request], StepResult]
 def solve_relaxation(programs: StepPrograms, request: Request) -> StepResult:
     """The relaxation's program, solved: the horizon's MILP with η zero outside its pairs and
     the specification restricted to its objects (``spec.restricted``); a hand's share split by
-    its orders where no-throw (18) allows (:meth:`StepPrograms.by_order`)."""
+    its orders where no-throw (18) allows
+    (:meth:`~dualarm_mpc.search.subprograms.StepPrograms.by_order`)."""
     # An object held now may stay held by either hand: untouching it is not free (it would
     # slide off), so every relaxation leaves it as the node programs may.
     held = [(i, j) for j in programs.held for i in range(N_HANDS)]
