@@ -4,16 +4,30 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= out
 
-.PHONY: demo test test-fast bench lint clean
+.PHONY: demo test test-fast bench lint docs clean
 
-$(BIN)/dualarm-mpc: pyproject.toml
+# What each target needs, installed once per change of pyproject.toml (README.md, "What each
+# extra installs"): `make demo` the package alone; `make docs` it and Sphinx; the tests every
+# extra (every solver, Dask, Chromium's driver, Sphinx, ...). A larger install marks the smaller
+# ones it contains as done, so `make demo` after `make test` installs nothing.
+$(VENV)/.installed-base: pyproject.toml
 	test -d $(VENV) || $(PY) -m venv $(VENV)
-	$(BIN)/pip install -q -e '.[test]'
+	$(BIN)/pip install -q -e .
 	touch $@
 
-# The plan is made as on the robot (closed_loop.ON_ROBOT): each object aimed at its own slot of its
-# goal, keeping 1 cm from the others.
-demo: $(BIN)/dualarm-mpc
+$(VENV)/.installed-docs: pyproject.toml
+	test -d $(VENV) || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q -e '.[docs]'
+	touch $@ $(VENV)/.installed-base
+
+$(VENV)/.installed-test: pyproject.toml
+	test -d $(VENV) || $(PY) -m venv $(VENV)
+	$(BIN)/pip install -q -e '.[test]'
+	touch $@ $(VENV)/.installed-docs $(VENV)/.installed-base
+
+# The plan is made as on the robot (model/scenario.py, ON_ROBOT): each object aimed at its own slot
+# of its goal, keeping 1 cm from the others.
+demo: $(VENV)/.installed-base
 	mkdir -p $(OUT)
 	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --set 'goal_margin: 0.03' --set 'goal_slots: true' \
 		--set 'object_clearance: 0.01' --out $(OUT)/plan.json --plot $(OUT)/plan.png
@@ -26,19 +40,28 @@ demo: $(BIN)/dualarm-mpc
 # what is left of the other's queue. -rs: a skipped test says why.
 PYTEST := $(BIN)/python -m pytest -q -rs -n auto --dist worksteal
 
-test: $(BIN)/dualarm-mpc
+test: $(VENV)/.installed-test
 	$(PYTEST)
 
 # The quick loop while working: everything but the tests marked slow (closed loop, Chromium,
 # subprocesses, Dask), about a minute.
-test-fast: $(BIN)/dualarm-mpc
+test-fast: $(VENV)/.installed-test
 	$(PYTEST) -m 'not slow'
 
-bench: $(BIN)/dualarm-mpc
+bench: $(VENV)/.installed-test
 	$(BIN)/python bench/table2.py
 
-lint: $(BIN)/dualarm-mpc
+lint: $(VENV)/.installed-test
 	$(BIN)/ruff check dualarm_mpc tests bench examples
 
+# The API reference from the docstrings, into build/docs (index.html). Every reference that names
+# nothing fails it (nitpicky, -W; docs/api/conf.py); -E reads every page anew, so a warning is never
+# hidden by an earlier build. tests/test_docs.py runs the same build under `make test`.
+SPHINX := $(BIN)/python -m sphinx -E -n -W --keep-going -q -b html
+
+docs: $(VENV)/.installed-docs
+	$(SPHINX) docs/api build/docs
+	@echo "the API reference: build/docs/index.html"
+
 clean:
-	rm -rf $(VENV) $(OUT)
+	rm -rf $(VENV) $(OUT) build/docs
