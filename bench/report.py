@@ -11,10 +11,11 @@ comments, the first naming what it shows::
 
 A file name renders that file as its bench's own report does (``--summarize``), the bench told
 by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, ``horizons``,
-``demo``); ``paper`` is Table II of the paper beside ours, pooled over every ``table2*.json``;
-``clearance`` is what ``object_clearance`` costs and saves, from ``table2-m2-apart.json`` and the
-two closed-loop records (``closed_loop.json``: objects apart, ``closed_loop-points.json``).
-Every table ends with the records it comes from: their date and the machine's speed.
+``demo``, ``install``); ``paper`` is Table II of the paper beside ours, pooled over every
+``table2*.json``; ``clearance`` is what ``object_clearance`` costs and saves, from
+``table2-m2-apart.json`` and the two closed-loop records (``closed_loop.json``: objects apart,
+``closed_loop-points.json``). Every table ends with the records it comes from: their date and the
+machine's speed.
 
 Run it (from the repository root)::
 
@@ -38,7 +39,7 @@ from benchlib import fmt, table
 
 ROOT = Path(__file__).resolve().parent.parent
 BLOCK = re.compile(r"(<!-- report (\S+) -->\n)(.*?)(<!-- /report -->)", re.DOTALL)
-BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons", "demo")
+BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons", "demo", "install")
 
 
 class RecordError(Exception):
@@ -92,7 +93,7 @@ def provenance(name: str, data: dict, commit: bool) -> str:
              f"{m['cpu_count']} cores",
              f"machine speed at the start (`benchlib.calibration`, lower is faster): Python loop "
              f"{c['python_loop_s']:.3f} s, HiGHS knapsack {c['highs_knapsack_s']:.3f} s"]
-    runs = data.get("runs") or data.get("solves") or []
+    runs = data.get("runs") or data.get("solves") or data.get("installs") or []
     loads = [r["load_avg_1min"] for r in runs if r.get("load_avg_1min") is not None]
     if loads:
         parts.append(f"load average {min(loads):.1f}–{max(loads):.1f} during the runs")
