@@ -8,7 +8,7 @@
                                   SceneGraph ─query─▶ Clearance ×2
                        plant ─contact_results─▶ ObjectContacts
 
-The Diagram exports its outputs by name (:func:`_export`; docs/drake.md, "Ports"), so that a
+The Diagram exports its outputs by name (:func:`!_export`; docs/drake.md, "Ports"), so that a
 user connects stock systems (a ``VectorLogSink``, a ``TrajectorySource``) to
 ``diagram.GetOutputPort(name)`` without knowing the systems inside.
 """
@@ -84,7 +84,7 @@ def MakeDiagram(scenario: Scenario, meshcat: Meshcat | None = None,
     """Build the closed loop for ``scenario``; with ``meshcat``, visualize (and record) there
     what a person sees (the illustration geometry), and with ``contacts`` also the contact forces
     and the proximity and inertia geometry. ``solve`` replaces the planner's solve of one horizon
-    (``MpcPlanner``). The Diagram's output ports are :func:`_export`'s."""
+    (``MpcPlanner``). The Diagram's output ports are :func:`!_export`'s."""
     builder = DiagramBuilder()
     station = AddStation(builder, scenario, time_step)
     stack = AddControlStack(builder, station)

@@ -2,8 +2,8 @@
 
 Weld constraints must exist before ``Finalize`` and can only be toggled from outside the Diagram;
 an off-centre weld also snaps the object across at several m/s (docs/drake.md, gripper). This
-gripper instead applies equal and opposite ``ExternallyAppliedSpatialForce``s to hand i and object j
-while the pair is attached::
+gripper instead applies equal and opposite ``ExternallyAppliedSpatialForce`` forces to hand i and
+object j while the pair is attached::
 
     F_j = −k·(Δp − d_ij) − c·Δv,      Δp = p_j − p_hand_i,  Δv = v_j − v_hand_i   (x, y only),
 
