@@ -204,7 +204,8 @@ def _waiting_search(searching: threading.Event, stopped: threading.Event):
 
 
 def test_the_planner_as_a_context_manager_stops_its_search() -> None:
-    sc = scenario(realtime=True, replan_budget_s=0.05)
+    # the first plan, made before the clock starts, waits one solve's time limit at most
+    sc = scenario(realtime=True, replan_budget_s=0.05, time_limit_s=0.5)
     searching, stopped = threading.Event(), threading.Event()
     with dm.MpcPlanner(sc, solve=_waiting_search(searching, stopped)) as planner:
         context = planner.CreateDefaultContext()
@@ -214,7 +215,7 @@ def test_the_planner_as_a_context_manager_stops_its_search() -> None:
         planner.GetInputPort("measured_state").FixValue(context, state.vector())
         planner.GetInputPort("goals").FixValue(context, AbstractValue.Make(SCENE["goals"]))
         simulator = Simulator(planner, context)
-        simulator.AdvanceTo(0.5)  # the replan at t = 0 waits its budget, the search goes on
+        simulator.AdvanceTo(0.5)  # the first replan waited its limit, the search goes on
         assert planner.GetOutputPort("replan").Eval(context).status == "searching"
         assert searching.is_set() and not stopped.is_set()
     assert stopped.wait(60)
@@ -241,7 +242,7 @@ print(dual.diagram.GetOutputPort("replan").Eval(simulator.get_context()).status,
 def test_a_planner_nobody_closed_does_not_hold_the_exit() -> None:
     """In real time, a search the robot waits for at rest runs on after its replan; the script
     ends without closing the planner, and the interpreter still exits."""
-    scene = {**SCENE, "solver": {"realtime": True, "replan_budget_s": 0.05}}
+    scene = {**SCENE, "solver": {"realtime": True, "replan_budget_s": 0.05, "time_limit_s": 0.5}}
     script = textwrap.dedent(UNCLOSED).format(scene=scene)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                           timeout=300)

@@ -12,9 +12,17 @@ from scenes import two_objects
 
 from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.mld import REST_SPEED, State, in_goal
-from dualarm_mpc.model.scenario import ObjectSpec, Robot, Scenario, Task, apply_overrides
+from dualarm_mpc.model.plan import step_at
+from dualarm_mpc.model.scenario import (
+    ObjectSpec,
+    Robot,
+    Scenario,
+    Task,
+    apply_overrides,
+    load_scenario,
+)
 from dualarm_mpc.model.spec import specification
-from dualarm_mpc.planning.mpc import SEARCHING, STILL_SPEED, MpcState, Replanner
+from dualarm_mpc.planning.mpc import PLANNED_AHEAD, SEARCHING, STILL_SPEED, MpcState, Replanner
 from dualarm_mpc.planning.sequential import solve_horizon
 
 GOALS = {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]}
@@ -349,3 +357,71 @@ def test_the_rest_of_an_optimal_plan_is_the_optimum_from_where_it_is(rule: int, 
         rest = solve_horizon(sc, x, spec, T - k)
         assert rest.status is Status.OPTIMAL, k
         assert rest.cost == pytest.approx(tail_cost(traj, k), abs=2e-4 * res.cost), k
+
+
+def _tracked(sc: Scenario, latency: float, fresh: bool = False, until: float = 40.0):
+    """The replanner with the robot tracking every plan exactly (each measurement is the plan in
+    force's state), a replan per Δt, each plan in force ``latency`` after its replan: the
+    records, and (``fresh``) beside each plan planned ahead the plan a fresh replanner finds at
+    the same replan from the same inputs."""
+    core, records, pairs = Replanner(sc), [], []
+    s, pending = core.initial_state(), None
+    measured = State.initial(sc)
+    for i in range(int(until / sc.robot.dt)):
+        t = i * sc.robot.dt
+        if pending is not None and pending[0] <= t + 1e-9:
+            s, pending = pending[1], None
+        k, _ = step_at(s.plan, t)
+        if 0 <= k < len(s.plan.trajectory.hand_pos):
+            measured = State.at(s.plan.trajectory, k)
+        new, r = core.step(t, s, measured, sc.task.goals, latency)
+        records.append(r)
+        if fresh and r.note == PLANNED_AHEAD:
+            other = Replanner(sc)
+            again, _ = other.step(t, dataclasses.replace(s, proven=None), measured,
+                                  sc.task.goals, latency)
+            other.close()
+            pairs.append((new.plan, again.plan))
+        if latency:
+            pending = (t + latency, new)
+        else:
+            s = new
+        if r.status == "done":
+            break
+    core.close()
+    return records, pairs
+
+
+THREE = {"seed": 2, "random_objects": {"count": 3}, "m_o": 1}
+
+
+def test_the_next_step_planned_ahead_is_the_plan_a_fresh_search_finds_there() -> None:
+    """Lockstep: each step after the first is planned while the one before runs, and adopted at
+    its boundary; a fresh replanner at that replan, from the same measurement, finds the same
+    plan (the same horizon, forces and grasps)."""
+    sc = load_scenario("table1_vd", THREE, on_robot=True)
+    records, pairs = _tracked(sc, 0.0, fresh=True)
+    assert records[-1].status == "done" and records[-1].n_delivered == 3
+    assert len(pairs) == 2  # steps 2 and 3
+    for ahead, fresh in pairs:
+        assert ahead.t0 == fresh.t0
+        a, b = ahead.trajectory, fresh.trajectory
+        assert a.steps == b.steps
+        for name in ("hand_pos", "force", "object_pos", "grasp"):
+            np.testing.assert_allclose(getattr(a, name), getattr(b, name), atol=1e-9)
+
+
+def test_a_replan_with_latency_plans_from_where_the_robot_will_be() -> None:
+    """A latency of Δt: each replan's plan starts Δt after it, from the state the plan in force
+    predicts there, so on a robot that tracks its plans every replan in a step keeps the plan in
+    force, and the task ends at most Δt later per step than without latency."""
+    sc = load_scenario("table1_vd", THREE, on_robot=True)
+    dt = sc.robot.dt
+    now, _ = _tracked(sc, 0.0)
+    late, _ = _tracked(sc, dt)
+    assert all(r.start == r.t + dt for r in late)
+    searched = [r for r in late if r.adopted and r.status != "done"]
+    assert [r.note for r in searched] == ["", PLANNED_AHEAD, PLANNED_AHEAD]
+    assert {r.status for r in late if not r.adopted} <= {"kept", "done"}
+    assert late[-1].n_delivered == 3
+    assert late[-1].t <= now[-1].t + 3 * dt

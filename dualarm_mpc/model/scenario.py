@@ -162,14 +162,15 @@ class SolverSettings:
     workers: int = field(default=2, metadata=_in(1, 64))
     # Closed loop (docs/drake.md, "Lockstep and real time"). Lockstep by default: the
     # simulation waits for every replan, whose plan takes over ``replan_latency_s`` of
-    # simulated time later (0 to Δt), and no search stops by wall time: the run is the same on
-    # any machine. ``realtime`` (``simulate --realtime``, the default with ``--meshcat``): a
-    # replan may hold the simulation for ``replan_budget_s`` of wall time (default 0.4 Δt),
-    # past which the robot follows the plan in force while the search goes on: what the robot
-    # does then depends on the machine's speed and load.
+    # simulated time later (0 to Δt; unset: 0 in lockstep, Δt in real time, the time the
+    # computer needs), planned from where the robot will be then; no search stops by wall time:
+    # the run is the same on any machine. ``realtime`` (``simulate --realtime``, the default
+    # with ``--meshcat``): a replan may hold the simulation for ``replan_budget_s`` of wall
+    # time (default 0.4 Δt), past which the robot follows the plan in force while the search
+    # goes on: what the robot does then depends on the machine's speed and load.
     realtime: bool = False
     replan_budget_s: float | None = field(default=None, metadata=_in(0.0, 3600.0))
-    replan_latency_s: float = field(default=0.0, metadata=_in(0.0, 3600.0))
+    replan_latency_s: float | None = field(default=None, metadata=_in(0.0, 3600.0))
     # Lockstep: branch-and-bound nodes a replan's solve of one program may take (HiGHS), where
     # real time has a wall-time limit; reached, the program is undecided, as at a time limit.
     replan_node_limit: int = field(default=2000, metadata=_in(1, 10**9))
@@ -400,12 +401,21 @@ class Scenario:
         self.task.validate()
         self.solver.validate()
         latency = self.solver.replan_latency_s
-        if latency > self.robot.dt:
+        if latency is not None and latency > self.robot.dt:
             raise ScenarioError(f"solver.replan_latency_s: at most robot.dt ({self.robot.dt} s), "
                                 f"got {latency}")
         for e, event in enumerate(self.events):
             event.validate(f"events[{e}]", self.task)
         self._check_reach()
+
+    @property
+    def replan_latency(self) -> float:
+        """Simulated seconds from a replan to its plan in force: ``solver.replan_latency_s``,
+        unset 0 in lockstep and Δt in real time."""
+        latency = self.solver.replan_latency_s
+        if latency is None:
+            return self.robot.dt if self.solver.realtime else 0.0
+        return latency
 
     def check_ranges(self) -> None:
         """Every number in its field's :class:`~dualarm_mpc.model.scenario.Range` and every text at

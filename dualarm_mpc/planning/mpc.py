@@ -23,6 +23,14 @@ from the measured state (Algorithm 1, one step at a time):
   periods and its plan starts when it ends ("searching"); while the robot moves, the late search
   is stopped ("over_budget") and the next period plans afresh. What the robot does then depends
   on the machine;
+* the next sequential step is planned ahead while the current one runs, from the state the plan
+  in force predicts at its end (delivered set, the hands' end states); the replan at that end
+  adopts it where the state it starts from matches the prediction within the tolerances a replan
+  snaps to the plan in force by, and searches afresh otherwise. In real time it runs on a
+  thread of its own, in lockstep in the replan that made the plan;
+* a replan may plan from later than now: with a latency L (the time the computer needs), the
+  replan at t plans from the measured state carried L on by the plan in force's inputs through
+  the model, and its plan starts at t + L (:meth:`Replanner.step`);
 * a replan from exactly the state the plan in force reaches now, when that plan was proven
   optimal for the same step and goals, keeps it without a search ("kept"): by the principle of
   optimality its rest is the replan's optimum (:meth:`!Replanner._on_proven_plan`);
@@ -40,6 +48,7 @@ import dataclasses
 import logging
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,8 +58,10 @@ from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import Interrupt, SolveOptions, Status, WorkLimit
 from dualarm_mpc.model.mld import (
     POSITION_TOL,
+    Model,
     Rect,
     State,
+    replay,
     standing,
 )
 from dualarm_mpc.model.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
@@ -78,6 +89,7 @@ GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close t
 NO_TIME_LIMIT_S = 1e7
 SEARCHING = "over budget: the robot waits at rest while the search goes on"
 ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
+PLANNED_AHEAD = "planned ahead while the last step ran"
 _ON_GRID = 1e-6  # of a step: a replan at the plan's step k exactly
 
 # solve(scenario, state, spec, T, options, start=...) -> StepResult: one horizon's solve.
@@ -97,6 +109,8 @@ class Replan:
     objects: tuple[int, ...]
     n_delivered: int  # objects resting in their goals when it ran
     note: str = ""
+    start: float | None = None  # when its plan starts: t + the replan's latency
+    adopted: bool = False  # it put a new plan in force
 
 
 @dataclass(frozen=True)
@@ -140,6 +154,7 @@ class Replanner:
         # The paper's rules look at most two steps ahead, which the model's state fixes (see
         # _on_proven_plan); a user rule may look anywhere, so with one every replan searches.
         self._keep_proven = all(name in RULE_TEXT for name, _ in self._rules)
+        self._ahead: _Ahead | None = None  # the next sequential step, planned ahead
 
     def initial_state(self) -> MpcState:
         sc = self._scenario
@@ -152,27 +167,60 @@ class Replanner:
         return None if self._worker is None else self._worker.search
 
     def close(self) -> None:
-        """Stop the search carried over, if any, and the worker (the run is over)."""
+        """Stop the searches running, if any, and the worker (the run is over)."""
+        self._drop_ahead()
         if self._worker is not None:
             self._worker.close()
 
-    def step(self, t: float, state: MpcState, measured: State,
-             goals: Goals) -> tuple[MpcState, Replan]:
-        """The replan at time ``t``: the new state (its plan starts at ``t``) and the record."""
+    def step(self, t: float, state: MpcState, measured: State, goals: Goals,
+             latency: float = 0.0, wait: bool = False) -> tuple[MpcState, Replan]:
+        """The replan at time ``t``: the new state (its plan starts at ``t + latency``, from the
+        measured state carried ``latency`` on by the plan in force, :meth:`propagated`) and the
+        record. ``wait``: in real time, wait for the search up to the time limit of one solve if
+        that is longer than the budget (the first plan, before the clock starts)."""
         wall0 = time.perf_counter()
         goals = {k: list(v) for k, v in goals.items()}
+        start = t + latency
         try:
-            return self._replan(t, state, measured, goals, wall0)
+            if latency > 0:
+                measured = self.propagated(t, state, measured, latency)
+            new, r = self._replan(start, state, measured, goals, wall0, wait)
         except Exception as err:  # a replan must never stop the simulation
             log.exception("replan at t=%.2f failed", t)
             if self._worker is not None:
                 self._worker.abandon()
-            return _record(state, t, wall0, "error", note=f"{type(err).__name__}: {err}")
+            self._drop_ahead()
+            new, r = _record(state, t, wall0, "error", note=f"{type(err).__name__}: {err}")
+        return new, dataclasses.replace(r, t=t, start=start)
+
+    def propagated(self, t: float, s: MpcState, m: State, latency: float) -> State:
+        """Where the robot will be when the replan's plan takes over, ``latency`` after ``t``:
+        the state a replan at ``t`` would start from (:meth:`_committed_state`: the plan in
+        force's own where the measurement matches it, the measurement where it has left it)
+        carried on through the model (eqs. 1, 8 and the one-step slide,
+        :func:`~dualarm_mpc.model.mld.replay`) by the plan in force's force and grasps over that
+        time; nothing held and no force once the plan is over, and a grasp voided at ``t`` (the
+        object gone from the hand) stays void."""
+        sc = self._scenario
+        n = sc.n_objects
+        now = self._committed_state(t, s, m)
+        k, _ = step_at(s.plan, t)
+        forces = s.plan.trajectory.force
+        planned = t < s.horizon_end - 1e-9 and 0 <= k < len(forces)
+        force = forces[k] if planned else np.zeros((2, 2))
+        later = now.grasp
+        if t + latency < s.horizon_end - 1e-9:
+            later = sample_grasp(s.plan, t + latency).reshape(2, n).round().astype(int)
+            if planned:
+                was = sample_grasp(s.plan, t).reshape(2, n).round().astype(int)
+                later = later * ~((was == 1) & (now.grasp == 0))
+        model = dataclasses.replace(Model.from_scenario(sc), dt=latency)
+        return State.last(replay(model, now, force[None], np.stack([now.grasp, later])))
 
     # -- the replan ---------------------------------------------------------------------------
 
     def _replan(self, t: float, s: MpcState, measured: State, goals: Goals,
-                wall0: float) -> tuple[MpcState, Replan]:
+                wall0: float, wait: bool = False) -> tuple[MpcState, Replan]:
         """Lockstep: solve to the end. Real time: wait at most the budget for a plan; past it,
         follow the plan in force and let the search go on in the background while the robot
         waits at rest (carried over to the next periods), or stop it while the robot moves (its
@@ -191,6 +239,13 @@ class Replanner:
         if not isinstance(prepared, _Job):
             return prepared
         job = prepared
+        ahead = self._take_ahead(t, job)
+        if ahead is not None:
+            planned = dataclasses.replace(ahead.job, changes=job.changes)
+            if not self.realtime or worker.within_budget(ahead.future):
+                return self._adopt(s, planned, ahead.future.result(), t, wall0, PLANNED_AHEAD)
+            worker.carry(planned, ahead.future, planned.options.interrupt)
+            return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
         if self._on_proven_plan(t, s, job):
             previous, grasp = s.grasp_start
             return _record(s, t, wall0, "kept", note=ON_PROVEN_PLAN,
@@ -198,7 +253,8 @@ class Replanner:
         if not self.realtime:
             return self._adopt(s, job, self._solve(job), t, wall0)
         future = worker.start(self._solve, job)
-        if worker.within_budget(future):
+        first = max(worker.budget_s, job.options.time_limit_s) if wait else None
+        if worker.within_budget(future, first):
             return self._adopt(s, job, future.result(), t, wall0)
         if job.idle:
             worker.carry(job, future, job.options.interrupt)
@@ -278,9 +334,10 @@ class Replanner:
         return res
 
     def _adopt(self, s: MpcState, job: _Job, res: StepResult | None, t: float,
-               wall0: float) -> tuple[MpcState, Replan]:
+               wall0: float, note: str = "") -> tuple[MpcState, Replan]:
         """The plan of a finished search, starting now (a search carried over started from a
-        state the robot still holds at rest)."""
+        state the robot still holds at rest); the next step is then planned ahead from its
+        end."""
         sc = job.scenario
         if res is None or not res.status.has_solution:
             status = res.status.value if res else "no_horizon"
@@ -288,12 +345,74 @@ class Replanner:
         objects = list(job.spec.objects)
         traj = embed_step(sc, job.state, objects, res.trajectory)
         plan = TimedTrajectory(t, sc.robot.dt, traj)
-        return _record(s, t, wall0, res.status.value, res, plan=plan,
-                       horizon_end=t + res.horizon * sc.robot.dt,
-                       grasp_start=(tuple(objects), res.trajectory.grasp),
-                       proven=_step_key(job) if res.status is Status.OPTIMAL else None,
-                       standing=standing(job.state, objects, sc.robot.dt),
-                       **job.changes)
+        new, record = _record(s, t, wall0, res.status.value, res, note=note, plan=plan,
+                              horizon_end=t + res.horizon * sc.robot.dt,
+                              grasp_start=(tuple(objects), res.trajectory.grasp),
+                              proven=_step_key(job) if res.status is Status.OPTIMAL else None,
+                              standing=standing(job.state, objects, sc.robot.dt),
+                              **job.changes)
+        self._plan_ahead(new, job.state, sc.task.goals)
+        return new, record
+
+    # -- the next step, planned ahead ---------------------------------------------------------
+
+    def _plan_ahead(self, s: MpcState, start: State, goals: Goals) -> None:
+        """Start planning the next sequential step: what the first replan that ``s``'s plan
+        (made from ``start``) predicts to start a new step (its objects delivered, a thrown one
+        arriving) will solve, from the state the plan predicts there. Objects outside the plan's
+        step that were sliding at its start are predicted where their slide ends (the plan
+        keeps them where they were). Nothing if no replan within the plan starts a new step,
+        or that replan has nothing to search (every object delivered), or it is being planned
+        already."""
+        traj, dt = s.plan.trajectory, self._scenario.robot.dt
+        outside = ~np.isin(np.arange(self._scenario.n_objects), s.step_objects)
+        settled = start.object_pos + dt * start.object_vel
+        for k in range(1, traj.steps + 1):
+            due = s.plan.t0 + k * dt
+            predicted = dataclasses.replace(State.at(traj, k), object_pos=np.where(
+                outside[:, None], settled, traj.object_pos[k]))
+            job = self._prepare(due, s, predicted, goals, time.perf_counter())
+            if not isinstance(job, _Job) or job.start is None:  # the step ends here
+                break
+        else:
+            job = None
+        if not isinstance(job, _Job):
+            self._drop_ahead()
+            return
+        if self._ahead is not None and self._ahead.due == due and \
+                _same_problem(self._ahead.job, job):
+            return
+        self._drop_ahead()
+        if self.realtime:
+            future = self._worker.start_ahead(self._solve, job)
+        else:  # lockstep: now, in the caller, as every lockstep solve
+            future = Future()
+            future.set_result(self._solve(job))
+        self._ahead = _Ahead(due, job, future)
+
+    def _take_ahead(self, t: float, job: _Job) -> _Ahead | None:
+        """The step planned ahead, where the replan at ``t`` is the one it was planned for and
+        starts where it was predicted to, within the tolerances a replan snaps to the plan in
+        force by (``SNAP_POSITION``, ``SNAP_VELOCITY``); a plan ahead for other goals, or whose
+        time has come without a match, is dropped."""
+        ahead = self._ahead
+        if ahead is None:
+            return None
+        if ahead.job.scenario.task.goals != job.scenario.task.goals:
+            self._drop_ahead()
+            return None
+        if t < ahead.due - 1e-9:
+            return None
+        self._ahead = None
+        if _same_problem(ahead.job, job):
+            return ahead
+        ahead.job.options.interrupt.set()
+        return None
+
+    def _drop_ahead(self) -> None:
+        if self._ahead is not None:
+            self._ahead.job.options.interrupt.set()
+            self._ahead = None
 
     def _on_proven_plan(self, t: float, s: MpcState, job: _Job) -> bool:
         """Whether the plan in force, from its step k reached at ``t`` on, is the optimum of
@@ -406,8 +525,24 @@ def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | 
     r = Replan(t=t, wall_s=time.perf_counter() - wall0, status=status,
                cost=None if res is None or res.trajectory is None else res.cost,
                horizon=None if res is None else res.horizon, objects=new.step_objects,
-               n_delivered=sum(d is not None for d in new.delivered_time), note=note)
+               n_delivered=sum(d is not None for d in new.delivered_time), note=note,
+               adopted="plan" in changes)
     return new, r
+
+
+def _same_problem(a: _Job, b: _Job) -> bool:
+    """Whether two replans solve the same problem: the same objects, m_o and goals, the same
+    grasps, and start states within the snap tolerances of each other."""
+    if (a.spec.objects, a.spec.m_o, a.scenario.task.goals, a.start is None) != \
+            (b.spec.objects, b.spec.m_o, b.scenario.task.goals, b.start is None):
+        return False
+    x, y = a.state, b.state
+    if not np.array_equal(x.grasp, y.grasp):
+        return False
+    return all(np.abs(p - q).max(initial=0) <= tol for p, q, tol in (
+        (x.hand_pos, y.hand_pos, SNAP_POSITION), (x.hand_vel, y.hand_vel, SNAP_VELOCITY),
+        (x.object_pos, y.object_pos, SNAP_POSITION),
+        (x.object_vel, y.object_vel, SNAP_VELOCITY)))
 
 
 def _within(now: tuple[np.ndarray, np.ndarray], then: tuple[np.ndarray, np.ndarray] | None,
@@ -435,6 +570,15 @@ class _Job:
     options: SolveOptions  # with the Interrupt that stops it
     idle: bool  # the robot rests with no plan left: a late result still applies
     changes: dict  # the bookkeeping to record with the replan
+
+
+@dataclass(frozen=True)
+class _Ahead:
+    """The next sequential step planned ahead: due at the plan in force's end."""
+
+    due: float
+    job: _Job  # from the state the plan in force predicts at ``due``
+    future: Future  # its result (lockstep: already there)
 
 
 def _hold(t: float, dt: float, state: State) -> TimedTrajectory:

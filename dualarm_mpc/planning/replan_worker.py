@@ -1,8 +1,9 @@
 """Real-time replans (``solver.realtime``): the worker thread a replan's search runs on, and the
 wall time a replan may hold the simulation for (its budget). Past the budget the robot follows
 the plan in force; a search the robot waits for at rest is carried over to the next periods
-(:attr:`ReplanWorker.search`), any other is stopped. Lockstep replans have no worker: they run
-in the caller to their end.
+(:attr:`ReplanWorker.search`), any other is stopped. The next sequential step, planned ahead
+while the current one runs, has a thread of its own, so that it never delays a replan of the
+current step. Lockstep replans have no worker: they run in the caller to their end.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ class ReplanWorker:
         budget = scenario.solver.replan_budget_s
         self.budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
+        self._ahead = ThreadPoolExecutor(1, thread_name_prefix="mpc-ahead")
         #: Real time: the search carried over to the next periods, if any.
         self.search: Search | None = None
 
@@ -46,10 +48,14 @@ class ReplanWorker:
         """``solve(job)`` on the worker."""
         return self._pool.submit(solve, job)
 
-    def within_budget(self, future: Future) -> bool:
-        """Wait for ``future`` at most the budget: whether it ended."""
+    def start_ahead(self, solve: Callable[[Any], Any], job: Any) -> Future:
+        """``solve(job)`` on the plan-ahead thread."""
+        return self._ahead.submit(solve, job)
+
+    def within_budget(self, future: Future, budget_s: float | None = None) -> bool:
+        """Wait for ``future`` at most the budget (or ``budget_s``): whether it ended."""
         try:
-            future.result(timeout=self.budget_s)
+            future.result(timeout=self.budget_s if budget_s is None else budget_s)
         except FutureTimeout:
             return False
         return True
@@ -72,4 +78,5 @@ class ReplanWorker:
     def close(self) -> None:
         """Stop the search carried over, if any, and the worker (the run is over)."""
         self.abandon()
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        for pool in (self._pool, self._ahead):
+            pool.shutdown(wait=False, cancel_futures=True)

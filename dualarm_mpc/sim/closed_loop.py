@@ -55,6 +55,8 @@ class Summary:
     # force (or waiting at rest) while the search went on. Their times, as in ``replans``.
     replans_over_budget: list[float] = field(default_factory=list)
     interrupted: bool = False  # stopped by Ctrl-C at ``sim_time_s``
+    # Seconds the robot stood at rest waiting for a search (Δt per "searching" replan).
+    waiting_s: float = 0.0
     # The least distance between the two arms' collision geometries over the run, sampled every
     # 20 ms by SceneGraph (systems/clearance.py); None if the run took no sample.
     min_arm_clearance_m: float | None = None
@@ -268,7 +270,8 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         final_object_pos=np.round(pos, 6).tolist(),
         final_object_speed=[round(v, 6) for v in speed],
         delivered_time_s=[None if d is None else round(d, 3) for d in s.delivered_time],
-        replans=[{"t": round(r.t, 3), "status": r.status, "cost": r.cost, "horizon": r.horizon,
+        replans=[{"t": round(r.t, 3), "start": round(r.start, 3), "status": r.status,
+                  "adopted": r.adopted, "cost": r.cost, "horizon": r.horizon,
                   "objects": [scenario.task.objects[j].name for j in r.objects],
                   "delivered": r.n_delivered, "note": r.note} for r in replans],
         sim_time_s=round(t, 3),
@@ -276,14 +279,25 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         events=[e.__dict__ for e in [*scenario.events, *applied]],
         replans_over_budget=[round(r.t, 3) for r in replans
                              if r.status in ("searching", "over_budget")],
+        waiting_s=round(scenario.robot.dt * sum(r.status == "searching" for r in replans), 3),
         interrupted=interrupted,
         min_arm_clearance_m=_least(dual.clearance, context),
         max_hand_penetration_m=_penetration(_least(dual.hand_clearance, context)),
         object_contacts=_object_contacts(scenario, dual, context),
         wall_clock={"wall_time_s": round(wall, 3),
                     "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),
-                    "replan_wall_s": [round(r.wall_s, 4) for r in replans]},
+                    "replan_wall_s": [round(r.wall_s, 4) for r in replans],
+                    **_percentiles([r.wall_s for r in replans])},
     )
+
+
+def _percentiles(wall_s: list[float]) -> dict:
+    """A replan's wall time at the median, the 95th percentile and the most."""
+    if not wall_s:
+        return {}
+    p50, p95 = np.percentile(wall_s, [50, 95])
+    return {"replan_wall_p50_s": round(float(p50), 4), "replan_wall_p95_s": round(float(p95), 4),
+            "replan_wall_max_s": round(max(wall_s), 4)}
 
 
 def _least(clearance, context) -> float | None:

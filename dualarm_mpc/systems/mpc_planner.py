@@ -3,13 +3,17 @@
 A thin LeafSystem: a periodic unrestricted update (every Δt from t = 0) reads the measured state
 and the goals from its input ports, calls :meth:`dualarm_mpc.planning.mpc.Replanner.step`, and keeps
 the new :class:`~dualarm_mpc.planning.mpc.MpcState` and the replan's record in its abstract state.
-The new state takes over ``solver.replan_latency_s`` of simulated time after the replan (0 by
-default: at once; at most Δt), held until then as the pending state; the plan in force meanwhile is
-the previous one. The output ports only read that state: the plan in
-force, also as Drake trajectories (:mod:`~dualarm_mpc.systems.trajectories`), and the last replan
-(the closed loop records every one of them; the log is not kept in the state). The state holds
-values only: a search that runs on (real time) is the Replanner's, stopped by :meth:`close`, at
-the end of a ``with`` block, when the planner is collected, or at the interpreter's exit.
+The new state takes over ``Scenario.replan_latency`` of simulated time after the replan (at most
+Δt; unset, 0 in lockstep and Δt in real time), held until then as the pending state, and its plan
+starts there, planned from where the robot will be then; the plan in force meanwhile is the
+previous one. In real time the first plan is made at initialization, before the clock starts,
+so that the robot moves from the first second (a search longer than one solve's time limit goes
+on while the robot waits, as any other). The output ports only read that state: the plan
+in force, also as Drake trajectories (:mod:`~dualarm_mpc.systems.trajectories`), and the last
+replan (the closed loop records every one of them; the log is not kept in the state). The state
+holds values only: a search that runs on (real time) is the Replanner's, stopped by
+:meth:`MpcPlanner.close`, at the end of a ``with`` block, when the planner is collected, or at
+the interpreter's exit.
 """
 
 from __future__ import annotations
@@ -55,8 +59,9 @@ class MpcPlanner(LeafSystem):
     (4, 2N and 2N rows; :mod:`~dualarm_mpc.systems.trajectories` says what each holds),
     abstract (pydrake binds no ``Value[PiecewisePolynomial]``: the value is a Python object),
     made once per plan. A stock ``TrajectorySource`` takes one (its constructor or
-    ``UpdateTrajectory``). A context manager: the ``with`` block's end calls :meth:`close`.
-    ``solve`` replaces one horizon's solve (``sequential.solve_horizon``), e.g. to inject failures.
+    ``UpdateTrajectory``). A context manager: the ``with`` block's end calls
+    :meth:`MpcPlanner.close`. ``solve`` replaces one horizon's solve
+    (``sequential.solve_horizon``), e.g. to inject failures.
     """
 
     _DUE = 1e-9  # s: a pending state due at t takes over at the update at t (float sums)
@@ -71,7 +76,7 @@ class MpcPlanner(LeafSystem):
         self._last = self.DeclareAbstractState(AbstractValue.Make(None))
         # (time it takes over, MpcState) of the last replan, until it does; else None
         self._pending = self.DeclareAbstractState(AbstractValue.Make(None))
-        dt, self.latency_s = scenario.robot.dt, scenario.solver.replan_latency_s
+        dt, self.latency_s = scenario.robot.dt, scenario.replan_latency
         self.realtime = self._replanner.realtime
         self._measured = self.DeclareVectorInputPort("measured_state", State.size(self._n))
         goals = {k: list(v) for k, v in scenario.task.goals.items()}
@@ -87,6 +92,8 @@ class MpcPlanner(LeafSystem):
                 ("hand_trajectory", hand_trajectory), ("object_trajectory", object_trajectory),
                 ("grasp_schedule", grasp_schedule)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
+        if self.realtime:
+            self.DeclareInitializationUnrestrictedUpdateEvent(self._first_plan)
         if 0 < self.latency_s < dt:  # a latency of Δt takes over at the next replan's update
             self.DeclarePeriodicUnrestrictedUpdateEvent(dt, self.latency_s, self._take_over)
 
@@ -164,12 +171,26 @@ class MpcPlanner(LeafSystem):
         state.get_mutable_abstract_state(self._state).set_value(current)
         state.get_mutable_abstract_state(self._pending).set_value(pending)
 
+    def _first_plan(self, context, state) -> None:
+        """Real time: the first replan, waited for up to one solve's time limit, before the
+        simulator's clock starts (Drake measures the real-time rate from the end of
+        ``Initialize``)."""
+        measured = State.from_vector(self._measured.Eval(context), self._n)
+        new, replan = self._replanner.step(context.get_time(), self.mpc_state(context), measured,
+                                           self._goals.Eval(context), wait=True)
+        state.get_mutable_abstract_state(self._state).set_value(new)
+        state.get_mutable_abstract_state(self._last).set_value(replan)
+
     def _update(self, context, state) -> None:
         """The replan at t, from the state in force at t; its state takes over at t + latency."""
         t = context.get_time()
+        last = context.get_abstract_state(self._last).get_value()
+        if last is not None and last.t == t:  # made at initialization, at this very time
+            return
         current, _ = self._in_force(context)
         measured = State.from_vector(self._measured.Eval(context), self._n)
-        new, replan = self._replanner.step(t, current, measured, self._goals.Eval(context))
+        new, replan = self._replanner.step(t, current, measured, self._goals.Eval(context),
+                                           self.latency_s)
         pending = None if self.latency_s == 0 else (t + self.latency_s, new)
         state.get_mutable_abstract_state(self._state).set_value(new if pending is None
                                                                 else current)
