@@ -55,7 +55,7 @@ from dualarm_mpc.model.mld import (
 )
 from dualarm_mpc.model.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import RULE_TEXT, Specification, rule_formulas, specification
+from dualarm_mpc.model.spec import RULE_TEXT, StepProblem, rule_formulas, specification
 from dualarm_mpc.model.verify import atom_trace
 from dualarm_mpc.planning import delivery
 from dualarm_mpc.planning.replan_worker import ReplanWorker, Search
@@ -80,7 +80,7 @@ SEARCHING = "over budget: the robot waits at rest while the search goes on"
 ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
 _ON_GRID = 1e-6  # of a step: a replan at the plan's step k exactly
 
-# solve(scenario, state, spec, T, options, start=...) -> StepResult: one horizon's solve.
+# solve(problem, T, options, start=...) -> StepResult: one horizon's solve (problem: StepProblem).
 Solve = Callable[..., StepResult]
 Goals = dict[str, list[float]]  # goal name → box [xmin, xmax, ymin, ymax]
 
@@ -180,7 +180,7 @@ class Replanner:
         worker = self._worker
         if self.search is not None:
             job, future = self.search.job, self.search.future
-            if job.scenario.task.goals != goals or not self._still(job, measured):
+            if job.problem.scenario.task.goals != goals or not self._still(job, measured):
                 worker.abandon()  # the world moved on: plan afresh below
             elif not worker.within_budget(future):
                 return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
@@ -257,7 +257,7 @@ class Replanner:
                        step_target=target)
         work = None if self.realtime else WorkLimit(sc.solver.replan_program_limit)
         options = dataclasses.replace(self._options, interrupt=Interrupt(), work=work)
-        return _Job(sc, state, spec, start, options, idle, changes)
+        return _Job(StepProblem(sc, state, spec), start, options, idle, changes)
 
     def _solve(self, job: _Job) -> StepResult | None:
         """The shortest feasible horizon (with cost (17) alone, a longer horizon lets the plan
@@ -265,9 +265,9 @@ class Replanner:
         worker."""
         wall0 = time.perf_counter()
         res = None
-        sc, state, spec = job.scenario, job.state, job.spec
-        for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
-            res = self._solve_horizon(sc, state, spec, T, job.options, start=job.start)
+        problem = job.problem
+        for T in range(predict_horizon(problem), problem.scenario.solver.max_horizon + 1):
+            res = self._solve_horizon(problem, T, job.options, start=job.start)
             if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
                 break
             if job.options.work is not None and job.options.work.spent():
@@ -281,18 +281,18 @@ class Replanner:
                wall0: float) -> tuple[MpcState, Replan]:
         """The plan of a finished search, starting now (a search carried over started from a
         state the robot still holds at rest)."""
-        sc = job.scenario
+        sc, start = job.problem.scenario, job.problem.state
         if res is None or not res.status.has_solution:
             status = res.status.value if res else "no_horizon"
             return _record(s, t, wall0, status, res, note="kept the previous plan", **job.changes)
-        objects = list(job.spec.objects)
-        traj = embed_step(sc, job.state, objects, res.trajectory)
+        objects = list(job.problem.spec.objects)
+        traj = embed_step(sc, start, objects, res.trajectory)
         plan = TimedTrajectory(t, sc.robot.dt, traj)
         return _record(s, t, wall0, res.status.value, res, plan=plan,
                        horizon_end=t + res.horizon * sc.robot.dt,
                        grasp_start=(tuple(objects), res.trajectory.grasp),
                        proven=_step_key(job) if res.status is Status.OPTIMAL else None,
-                       standing=standing(job.state, objects, sc.robot.dt),
+                       standing=standing(start, objects, sc.robot.dt),
                        **job.changes)
 
     def _on_proven_plan(self, t: float, s: MpcState, job: _Job) -> bool:
@@ -316,23 +316,25 @@ class Replanner:
         k, within = step_at(s.plan, t)
         if within > _ON_GRID or not 1 <= k < traj.steps:
             return False
-        x, objects = job.state, list(job.spec.objects)
+        sc, x, spec = job.problem.scenario, job.problem.state, job.problem.spec
+        objects = list(spec.objects)
         pairs = [(x.hand_pos, traj.hand_pos[k]), (x.hand_vel, traj.hand_vel[k]),
                  (x.object_pos[objects], traj.object_pos[k][objects]),
                  (x.object_vel[objects], traj.object_vel[k][objects]),
                  (x.grasp[:, objects], traj.grasp[k][:, objects])]
         if any(np.abs(a - b).max(initial=0) > POSITION_TOL for a, b in pairs):
             return False
-        if job.scenario.task.object_clearance is not None and not _within(
-                standing(x, objects, job.scenario.robot.dt), s.standing):
+        if sc.task.object_clearance is not None and not _within(
+                standing(x, objects, sc.robot.dt), s.standing):
             return False  # an object outside the step moved into its way (C1)
-        holds = atom_trace(job.scenario, traj, k, traj.steps)
-        return evaluate(job.spec.task(), holds, traj.steps - k)
+        holds = atom_trace(sc, traj, k, traj.steps)
+        return evaluate(spec.task(), holds, traj.steps - k)
 
     def _still(self, job: _Job, m: State) -> bool:
         """Whether the robot and the objects still rest where the search carried over started."""
         pos = np.concatenate([m.hand_pos, m.object_pos])
-        was = np.concatenate([job.state.hand_pos, job.state.object_pos])
+        start = job.problem.state
+        was = np.concatenate([start.hand_pos, start.object_pos])
         speed = np.abs(np.concatenate([m.hand_vel, m.object_vel])).max(initial=0)
         return bool(np.abs(pos - was).max(initial=0) < SNAP_POSITION and speed < SNAP_VELOCITY)
 
@@ -420,17 +422,16 @@ def _within(now: tuple[np.ndarray, np.ndarray], then: tuple[np.ndarray, np.ndarr
 
 def _step_key(job: _Job) -> tuple:
     """What a plan is optimal for: the step's objects, m_o and the goals."""
-    goals = tuple(sorted((name, tuple(box)) for name, box in job.scenario.task.goals.items()))
-    return job.spec.objects, job.spec.m_o, goals
+    scenario, spec = job.problem.scenario, job.problem.spec
+    goals = tuple(sorted((name, tuple(box)) for name, box in scenario.task.goals.items()))
+    return spec.objects, spec.m_o, goals
 
 
 @dataclass(frozen=True)
 class _Job:
     """One replan's search: what to solve, from which state, and how to stop it."""
 
-    scenario: Scenario  # with the goals the replan saw
-    state: State
-    spec: Specification
+    problem: StepProblem  # its scenario with the goals the replan saw
     start: Callable | None  # MIP start for the monolithic MILP
     options: SolveOptions  # with the Interrupt that stops it
     idle: bool  # the robot rests with no plan left: a late result still applies
