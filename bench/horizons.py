@@ -48,7 +48,7 @@ from dualarm_mpc.milp.horizon import solve_options
 from dualarm_mpc.milp.solver import Interrupt
 from dualarm_mpc.model.mld import State, delivered_objects
 from dualarm_mpc.model.scenario import load_scenario
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.planning.sequential import predict_horizon, select_objects, transport
 
 
@@ -106,10 +106,10 @@ def step_start(args: argparse.Namespace) -> tuple[State, list[dict]]:
     return State.last(result.trajectory), [s.to_json() for s in result.segments]
 
 
-def solve(scenario, state: State, spec, horizon: int, method: str) -> dict:
+def solve(problem: StepProblem, horizon: int, method: str) -> dict:
     """One horizon by one method (bench/solvers.py's solve, on the scenario's backend), its
     gap derived from cost and bound."""
-    r = solve_one(scenario, state, spec, horizon, scenario.solver.backend, method)
+    r = solve_one(problem, horizon, problem.scenario.solver.backend, method)
     bound = r["bound"] if math.isfinite(r["bound"]) else None  # none: no plan at all
     cost = r["cost"]
     gap = None if cost is None or bound is None else (cost - bound) / max(abs(cost), 1e-12)
@@ -141,8 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     if not remaining:
         raise SystemExit(f"every object is delivered before step {args.step}")
     objects = select_objects(scenario, state, remaining)
-    spec = specification(scenario, objects)
-    first = predict_horizon(scenario, state, spec)
+    problem = StepProblem(scenario, state, specification(scenario, objects))
+    first = predict_horizon(problem)
     data = {"options": options_json(args),
             "machine": info, "steps_before": before,
             "step": {"objects": objects, "predicted_horizon": first,
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
             "solves": []}
     for horizon in args.horizons:
         for method in args.methods:
-            data["solves"].append(solve(scenario, state, spec, horizon, method))
+            data["solves"].append(solve(problem, horizon, method))
             s = data["solves"][-1]
             print(f"T={horizon} {method:<10} {s['status']:<10} {fmt(s['wall_s'], '.1f')} s",
                   file=sys.stderr, flush=True)

@@ -38,7 +38,7 @@ from table2 import SCENARIO, parse_row, step_starts
 from dualarm_mpc.milp.horizon import HorizonProgram, solve_step
 from dualarm_mpc.milp.solver import SolverUnavailable, installed_backends
 from dualarm_mpc.model.scenario import load_scenario
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.planning.sequential import transport
 from dualarm_mpc.search.skeleton import search_step
 
@@ -59,15 +59,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def solve_one(scenario, state, spec, horizon: int, backend: str, method: str) -> dict:
+def solve_one(problem: StepProblem, horizon: int, backend: str, method: str) -> dict:
     """One model by one backend and method: times, status, cost, or the licence refusal."""
-    scenario = replace(scenario, solver=replace(scenario.solver, backend=backend))
+    solver = replace(problem.scenario.solver, backend=backend)
+    problem = replace(problem, scenario=replace(problem.scenario, solver=solver))
     t0, cpu0 = time.perf_counter(), time.process_time()
     try:
         if method == "search":
-            res = search_step(scenario, state, spec, horizon)
+            res = search_step(problem, horizon)
         else:
-            res = solve_step(scenario, state, spec, horizon)
+            res = solve_step(problem, horizon)
     except SolverUnavailable as err:
         return {"status": "over_licence", "message": str(err)}
     return {"status": res.status.value, "cost": res.cost if res.status.has_solution else None,
@@ -89,7 +90,7 @@ def run_model(m_o: int, n_o: int, rule: int, seed: int, args: argparse.Namespace
         for backend in args.solvers:
             for method in METHODS:
                 load = os.getloadavg()[0]
-                r = solve_one(scenario, state, spec, seg.horizon, backend, method)
+                r = solve_one(StepProblem(scenario, state, spec), seg.horizon, backend, method)
                 out.append({"m_o": m_o, "n_o": n_o, "rule": rule, "seed": seed, "step": n,
                             "horizon": seg.horizon, **size, "backend": backend,
                             "method": method, "load_avg_1min": load, **r})

@@ -66,7 +66,7 @@ from dualarm_mpc.milp.horizon import solve_options, solve_step
 from dualarm_mpc.milp.solver import Interrupt
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.scenario import SOLVER_BACKENDS, load_scenario, ortools_installed
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.sequential import PlanningError, predict_horizon, transport
 
@@ -169,7 +169,7 @@ def predicted_horizons(scenario, result) -> list[int]:
     """predictT of each sequential step, from the state the step started in: the horizon the
     planner tried first (the horizons between it and the accepted one were infeasible or timed
     out)."""
-    return [predict_horizon(scenario, state, specification(scenario, seg.objects))
+    return [predict_horizon(StepProblem(scenario, state, specification(scenario, seg.objects)))
             for seg, state in step_starts(result)]
 
 
@@ -235,7 +235,8 @@ def compare_steps(scenario, result, steps: list[dict]) -> None:
     ours (``monolithic_cost``, ``monolithic_status``). Whole plans can differ where a step has
     several optimal plans, so the optima are compared step by step."""
     for step, (seg, state) in zip(steps, step_starts(result), strict=True):
-        mono = solve_step(scenario, state, specification(scenario, seg.objects), seg.horizon)
+        problem = StepProblem(scenario, state, specification(scenario, seg.objects))
+        mono = solve_step(problem, seg.horizon)
         step["monolithic_status"] = mono.status.value
         step["monolithic_cost"] = mono.cost if mono.status.has_solution else None
         step["monolithic_time_s"] = mono.solve_time_s + mono.build_time_s

@@ -33,7 +33,7 @@ from dualarm_mpc.milp.solver import (
 )
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.scenario import SOLVER_BACKENDS, load_scenario
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.planning.sequential import predict_horizon, select_objects
 from dualarm_mpc.search.skeleton import search_step
 
@@ -173,7 +173,7 @@ def step(m_o: int, n_o: int, rule: int):
     state = State.initial(s)
     objects = select_objects(s, state, list(range(s.n_objects)))
     spec = specification(s, objects)
-    return s, state, spec, predict_horizon(s, state, spec)
+    return s, state, spec, predict_horizon(StepProblem(s, state, spec))
 
 
 STEPS = [(1, 1, 2), (1, 2, 1), (2, 2, 2)]
@@ -186,10 +186,11 @@ def highs_steps() -> dict:
     out = {}
     for key in STEPS:
         s, state, spec, T = step(*key)
-        while (mono := solve_step(s, state, spec, T)).status is Status.INFEASIBLE:
+        problem = StepProblem(s, state, spec)
+        while (mono := solve_step(problem, T)).status is Status.INFEASIBLE:
             T += 1
         assert mono.status is Status.OPTIMAL
-        out[key] = mono, search_step(s, state, spec, T)
+        out[key] = mono, search_step(problem, T)
     return out
 
 
@@ -202,12 +203,13 @@ def test_the_same_step_optima_as_highs(backend, key, highs_steps) -> None:
     mono_ref, search_ref = highs_steps[key]
     T = mono_ref.horizon
     s = dataclasses.replace(s, solver=dataclasses.replace(s.solver, backend=backend))
-    mono = solve_step(s, state, spec, T)
+    problem = StepProblem(s, state, spec)
+    mono = solve_step(problem, T)
     assert mono.status is Status.OPTIMAL
     assert mono.cost == pytest.approx(mono_ref.cost, rel=2e-4)
-    if T > predict_horizon(s, state, spec):
-        assert solve_step(s, state, spec, T - 1).status is Status.INFEASIBLE
-    found = search_step(s, state, spec, T)
+    if T > predict_horizon(problem):
+        assert solve_step(problem, T - 1).status is Status.INFEASIBLE
+    found = search_step(problem, T)
     assert found.status is search_ref.status
     if found.status.has_solution:
         assert found.cost == pytest.approx(search_ref.cost, rel=2e-4)

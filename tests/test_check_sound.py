@@ -20,7 +20,7 @@ from dualarm_mpc.milp.horizon import solve_options, solve_step
 from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.scenario import Scenario, apply_overrides
-from dualarm_mpc.model.spec import negated_atoms, specification
+from dualarm_mpc.model.spec import StepProblem, negated_atoms, specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import check
 from dualarm_mpc.planning.sequential import transport
@@ -77,7 +77,7 @@ def monolithic_statuses(scenario: Scenario) -> list[Status]:
     cap = scenario.solver.max_horizon
     options = dataclasses.replace(solve_options(scenario), mip_rel_gap=1.0)
     horizons = [cap] if spec.monotone_in_horizon() else range(1, cap + 1)
-    return [solve_step(scenario, State.initial(scenario), spec, T, options).status
+    return [solve_step(StepProblem(scenario, State.initial(scenario), spec), T, options).status
             for T in horizons]
 
 

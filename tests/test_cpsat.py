@@ -35,7 +35,7 @@ from dualarm_mpc.milp.solver import (  # noqa: E402
 )
 from dualarm_mpc.model.mld import State  # noqa: E402
 from dualarm_mpc.model.scenario import ScenarioError, load_scenario  # noqa: E402
-from dualarm_mpc.model.spec import specification  # noqa: E402
+from dualarm_mpc.model.spec import StepProblem, specification  # noqa: E402
 from dualarm_mpc.planning.sequential import predict_horizon, second_prover  # noqa: E402
 
 QUICK = SolveOptions(time_limit_s=10.0)
@@ -188,7 +188,7 @@ def test_the_relaxation_of_a_step_keeps_highs_plans_and_proves_only_what_highs_p
     s = random_scene(seed)
     state = State.initial(s)
     spec = specification(s, [0, 1, 2])
-    first = predict_horizon(s, state, spec)
+    first = predict_horizon(StepProblem(s, state, spec))
     proven = 0
     for T in range(max(first - 1, 1), first + 2):
         f = HorizonProgram(s, state, [0, 1, 2], T)._specified(spec)
@@ -280,7 +280,7 @@ def table2_step():
 def test_the_second_prover_proves_a_table2_horizon_and_reports_it() -> None:
     s, state, spec = table2_step()
     tried = []
-    with second_prover(s, state, spec, solve_options(s), 1.0, tried.append) as prover:
+    with second_prover(StepProblem(s, state, spec), solve_options(s), 1.0, tried.append) as prover:
         prover.ask([10, 11])
         assert eventually(lambda: set(prover.proofs()) == {10, 11})
     assert [(t.horizon, t.status) for t in tried] == [(10, Status.INFEASIBLE),
@@ -293,7 +293,7 @@ def test_the_second_prover_proves_a_table2_horizon_and_reports_it() -> None:
 def test_no_second_prover_proves_nothing() -> None:
     s, state, spec = table2_step()
     s = dataclasses.replace(s, solver=dataclasses.replace(s.solver, prover="none"))
-    with second_prover(s, state, spec, solve_options(s), 1.0) as prover:
+    with second_prover(StepProblem(s, state, spec), solve_options(s), 1.0) as prover:
         prover.ask([10, 11])
         with prover.searching(11, QUICK) as options:
             assert options is QUICK

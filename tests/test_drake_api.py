@@ -192,7 +192,7 @@ def test_the_diagram_exports_its_ports_by_name() -> None:
 def _waiting_search(searching: threading.Event, stopped: threading.Event):
     """One horizon's solve that never ends by itself: it waits for its interrupt (at most a
     minute, so that a failing test still ends)."""
-    def solve(scenario, state, spec, T, options, start=None):
+    def solve(problem, T, options, start=None):
         searching.set()
         for _ in range(6000):
             if options.interrupt.is_set():
@@ -226,7 +226,7 @@ import threading, time
 import dualarm_mpc as dm
 from pydrake.systems.analysis import Simulator
 
-def solve(scenario, state, spec, T, options, start=None):
+def solve(problem, T, options, start=None):
     while not options.interrupt.is_set():  # the search never ends unless it is stopped
         time.sleep(0.01)
     raise RuntimeError("stopped")

@@ -27,7 +27,7 @@ from dualarm_mpc.milp.linear import Rows, bound, new_variables
 from dualarm_mpc.milp.solver import SolveOptions, Status
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.scenario import Scenario, apply_overrides
-from dualarm_mpc.model.spec import negated_atoms, specification
+from dualarm_mpc.model.spec import StepProblem, negated_atoms, specification
 from dualarm_mpc.planning import sequential
 
 P, Q, R = Atom("p"), Atom("q"), Atom("r")
@@ -236,7 +236,7 @@ def _build(scenario: Scenario, horizon: int = 4, rules: list[str] | None = None)
     state = State.initial(scenario)
     named = None if rules is None else [(text, parse(text)) for text in rules]
     spec = specification(scenario, [0], rules=named)
-    return build_program(scenario, state, spec, horizon)
+    return build_program(StepProblem(scenario, state, spec), horizon)
 
 
 def test_negated_goal_atom_in_a_rule_is_rejected_naming_it() -> None:
@@ -282,7 +282,7 @@ def test_rule_on_an_object_outside_the_step_uses_its_constant_value() -> None:
     ):
         s = apply_overrides(scenario, {"rules": rules})
         spec = specification(s, [0])
-        res = solve_step(s, state, spec, 6)
+        res = solve_step(StepProblem(s, state, spec), 6)
         assert res.status.has_solution is feasible, rules
 
 
@@ -343,7 +343,7 @@ def test_task_forms_give_the_same_optimal_cost(delivery: str) -> None:
     for form in ("counting", "subsets"):
         s = apply_overrides(scenario, {"task_form": form})
         spec = specification(s, [0, 1, 2])
-        results[form], _ = sequential.plan_step(s, state, spec)
+        results[form], _ = sequential.plan_step(StepProblem(s, state, spec))
     counting, subsets = results["counting"], results["subsets"]
     assert counting.status is subsets.status is Status.OPTIMAL
     assert counting.horizon == subsets.horizon

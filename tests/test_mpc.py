@@ -21,7 +21,7 @@ from dualarm_mpc.model.scenario import (
     apply_overrides,
     load_scenario,
 )
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.planning.mpc import PLANNED_AHEAD, SEARCHING, STILL_SPEED, MpcState, Replanner
 from dualarm_mpc.planning.sequential import solve_horizon
 
@@ -211,7 +211,7 @@ def test_a_search_carried_over_is_abandoned_when_a_goal_moves() -> None:
     calls = []
 
     def held(*args, **kwargs):
-        calls.append(args[0].task.goals["red"])
+        calls.append(args[0].scenario.task.goals["red"])  # the step's problem
         release.wait()
         return solve_horizon(*args, **kwargs)
 
@@ -284,7 +284,7 @@ def on_plan(s: MpcState, k: int) -> State:
 
 def counting_solves(calls: list):
     def solve(*args, **kwargs):
-        calls.append(args[3])  # the horizon
+        calls.append(args[1])  # the horizon
         return solve_horizon(*args, **kwargs)
 
     return solve
@@ -344,17 +344,17 @@ def test_the_rest_of_an_optimal_plan_is_the_optimum_from_where_it_is(rule: int, 
     one-step slide look past k."""
     sc = apply_overrides(two_objects(), {"rule": rule, "delivery": delivery, "m_o": m_o})
     spec = specification(sc, [0, 1])
-    start = State.initial(sc)
+    from_start = StepProblem(sc, State.initial(sc), spec)
     res = next(r for T in range(1, sc.solver.max_horizon + 1)
-               if (r := solve_horizon(sc, start, spec, T)).status is not Status.INFEASIBLE)
+               if (r := solve_horizon(from_start, T)).status is not Status.INFEASIBLE)
     assert res.status is Status.OPTIMAL
     traj, T = res.trajectory, res.horizon
     released = [k + 1 for k in range(T - 1) if (traj.grasp[k] & ~traj.grasp[k + 1]).any()]
     assert released or rule == 1  # under rule 2 the cheapest plans throw
     for k in range(1, T):
-        x = State.at(traj, k)
-        assert solve_horizon(sc, x, spec, T - k - 1).status is Status.INFEASIBLE, k
-        rest = solve_horizon(sc, x, spec, T - k)
+        from_k = StepProblem(sc, State.at(traj, k), spec)
+        assert solve_horizon(from_k, T - k - 1).status is Status.INFEASIBLE, k
+        rest = solve_horizon(from_k, T - k)
         assert rest.status is Status.OPTIMAL, k
         assert rest.cost == pytest.approx(tail_cost(traj, k), abs=2e-4 * res.cost), k
 

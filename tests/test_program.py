@@ -19,7 +19,7 @@ from dualarm_mpc.milp.horizon import HorizonProgram, build_program, solve_step
 from dualarm_mpc.milp.solver import SolveOptions, Status, standard_form
 from dualarm_mpc.model.mld import Model, State, replay, violations
 from dualarm_mpc.model.scenario import Scenario, load_scenario
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.planning import sequential
 
 
@@ -39,7 +39,7 @@ def step(scenario: Scenario, objects: list[int]):
     scenario = replace(scenario, solver=replace(scenario.solver, search="monolithic"))
     state = State.initial(scenario)
     spec = specification(scenario, objects)
-    result, _ = sequential.plan_step(scenario, state, spec)
+    result, _ = sequential.plan_step(StepProblem(scenario, state, spec))
     return state, spec, result
 
 
@@ -99,7 +99,7 @@ def test_a_throw_releases_at_speed_and_lands_beyond_the_reach() -> None:
 def _matrix(scenario: Scenario, T: int = 6):
     state = State.initial(scenario)
     spec = specification(scenario, [0, 1])
-    prog, x, model, local = build_program(scenario, state, spec, T)
+    prog, x, model, local = build_program(StepProblem(scenario, state, spec), T)
     return prog, standard_form(prog), model, local
 
 
@@ -132,7 +132,7 @@ def test_constraints_are_added_in_blocks() -> None:
             scenario = thrown()
             state = State.initial(scenario)
             spec = specification(scenario, list(range(n)))
-            prog, *_ = build_program(scenario, state, spec, T)
+            prog, *_ = build_program(StepProblem(scenario, state, spec), T)
             counts.add(len(prog.GetAllConstraints()))
     assert len(counts) == 1 and counts.pop() <= 30
 
@@ -141,7 +141,7 @@ def test_a_six_object_program_reads_into_standard_form() -> None:
     scenario = load_scenario("table1_vc")
     state = State.initial(scenario)
     spec = specification(scenario, [0, 3, 5, 6, 8, 9])
-    prog, *_ = build_program(scenario, state, spec, 10)
+    prog, *_ = build_program(StepProblem(scenario, state, spec), 10)
     f = standard_form(prog)
     assert f.A.shape == (len(f.row_lb), prog.num_vars()) and f.A.shape[0] > 1000
 
@@ -169,12 +169,13 @@ def test_pruning_does_not_change_feasibility_or_optimal_cost(case: str, objects)
     scenario = two_objects() if case == "two" else thrown()
     state = State.initial(scenario)
     spec = specification(scenario, objects)
+    problem = StepProblem(scenario, state, spec)
     fixed = {}
     for T in range(1, 11):
         results = {}
         for pruning in (True, False):
-            results[pruning] = solve_step(scenario, state, spec, T, pruning=pruning)
-            prog, *_ = build_program(scenario, state, spec, T, pruning=pruning)
+            results[pruning] = solve_step(problem, T, pruning=pruning)
+            prog, *_ = build_program(problem, T, pruning=pruning)
             f = standard_form(prog)
             fixed[pruning] = int(((f.col_ub == 0) & f.integer).sum())
         on, off = results[True], results[False]
@@ -185,7 +186,7 @@ def test_pruning_does_not_change_feasibility_or_optimal_cost(case: str, objects)
             break
     else:
         pytest.fail("no horizon up to 10 was feasible")
-    assert T >= sequential.predict_horizon(scenario, state, spec)  # predictT is a lower bound
+    assert T >= sequential.predict_horizon(problem)  # predictT is a lower bound
 
 
 # --- the HiGHS adapter ---------------------------------------------------------------------------

@@ -22,7 +22,7 @@ from dualarm_mpc.model import route
 from dualarm_mpc.model.mld import N_HANDS, Model, State, in_goal
 from dualarm_mpc.model.route import axis_steps, axis_times, horizon_bound, orders, route_steps
 from dualarm_mpc.model.scenario import load_scenario
-from dualarm_mpc.model.spec import restricted, specification
+from dualarm_mpc.model.spec import StepProblem, restricted, specification
 
 
 def test_one_axis_counts_the_steps_of_a_bang_bang_move() -> None:
@@ -156,7 +156,7 @@ def test_the_step_bound_never_rules_out_a_horizon_the_monolithic_milp_allows(see
     bound = horizon_bound(Model.from_scenario(scenario, [0, 1, 2]), state,
                           m_o, frozenset({0, 1, 2}), scenario.solver.max_horizon)
     assert bound > 1
-    res = solve_step(scenario, state, spec, bound - 1,
+    res = solve_step(StepProblem(scenario, state, spec), bound - 1,
                      SolveOptions(time_limit_s=120.0, mip_rel_gap=1.0))
     assert res.status is Status.INFEASIBLE, bound
 

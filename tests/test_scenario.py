@@ -670,13 +670,13 @@ def test_the_largest_horizon_builds_a_program() -> None:
     from dualarm_mpc.milp.horizon import build_program
     from dualarm_mpc.model.mld import State
     from dualarm_mpc.model.scenario import MAX_HORIZON
-    from dualarm_mpc.model.spec import specification
+    from dualarm_mpc.model.spec import StepProblem, specification
 
     s = load_scenario("table1_vd", {"random_objects": {"count": 1}, "m_o": 1, "n_o": 1,
                                     "rules": ["F theta[1]", "eta[1,1] U theta[1]",
                                               "G(eta[1,1] R theta[1])"],
                                     "solver": {"max_horizon": MAX_HORIZON}})
-    prog, *_ = build_program(s, State.initial(s), specification(s, [0]), MAX_HORIZON)
+    prog, *_ = build_program(StepProblem(s, State.initial(s), specification(s, [0])), MAX_HORIZON)
     assert prog.num_vars() > MAX_HORIZON
 
 

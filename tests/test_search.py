@@ -36,6 +36,7 @@ from dualarm_mpc.model.mld import (
 from dualarm_mpc.model.scenario import Scenario, load_scenario
 from dualarm_mpc.model.spec import (
     RULE_TEXT,
+    StepProblem,
     expand,
     rule_formulas,
     specification,
@@ -136,7 +137,7 @@ def first_feasible(s: Scenario, spec):
     """The monolithic reference: the shortest feasible horizon and its optimum."""
     state = State.initial(s)
     for T in range(3, 16):
-        res = solve_step(s, state, spec, T)
+        res = solve_step(StepProblem(s, state, spec), T)
         if res.status is not Status.INFEASIBLE:
             return res
     raise AssertionError("no horizon up to 15")
@@ -156,15 +157,16 @@ def test_search_returns_the_monolithic_optimum_of_the_same_horizon(seed: int) ->
     assert mono.status is Status.OPTIMAL
     state = State.initial(s)
     exact = dataclasses.replace(s, solver=dataclasses.replace(s.solver, handover="always"))
-    found = search_step(exact, state, spec, mono.horizon)
+    problem = StepProblem(exact, state, spec)
+    found = search_step(problem, mono.horizon)
     assert found.status is Status.OPTIMAL
     assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
     assert replayed_trace_satisfies(s, spec, found)
     # The shorter horizon has no plan for the search either.
-    assert search_step(exact, state, spec, mono.horizon - 1).status is Status.INFEASIBLE
+    assert search_step(problem, mono.horizon - 1).status is Status.INFEASIBLE
     # The default search (hand-overs only where needed) matches whenever the monolithic
     # optimum holds no object with both hands, and is never below it.
-    auto = search_step(s, state, spec, mono.horizon)
+    auto = search_step(StepProblem(s, state, spec), mono.horizon)
     assert auto.cost >= mono.cost * (1 - 1e-6) - 1e-9
     if not held_by_both(mono):
         assert auto.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
@@ -189,7 +191,7 @@ def test_objects_kept_apart_row_by_row_as_plans_need_them_give_the_whole_program
     every_row = solve_standard_form(whole.standard_form(spec), solve_options(s))
     assert every_row.objective == pytest.approx(mono.cost, rel=1e-4)
     exact = dataclasses.replace(s, solver=dataclasses.replace(s.solver, handover="always"))
-    found = search_step(exact, state, spec, mono.horizon)
+    found = search_step(StepProblem(exact, state, spec), mono.horizon)
     assert found.status is Status.OPTIMAL
     assert found.cost == pytest.approx(mono.cost, rel=1e-4)
     model = Model.from_scenario(s, [0, 1, 2])
@@ -209,18 +211,20 @@ def test_search_returns_the_monolithic_optimum_delivering_three(seed: int) -> No
     mono = first_feasible(s, spec)
     assert mono.status is Status.OPTIMAL
     state = State.initial(s)
-    found = search_step(s, state, spec, mono.horizon)
+    problem = StepProblem(s, state, spec)
+    found = search_step(problem, mono.horizon)
     assert found.status is Status.OPTIMAL
     assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
     assert replayed_trace_satisfies(s, spec, found)
-    assert search_step(s, state, spec, mono.horizon - 1).status is Status.INFEASIBLE
+    assert search_step(problem, mono.horizon - 1).status is Status.INFEASIBLE
 
 
 def test_the_nodes_cover_every_labelling_with_one_widest_hand_over_node_per_delivered_set() -> None:
     s = random_scene(2)
     s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=2))
     spec = specification(s, [0, 1, 2])
-    programs = StepPrograms(s, State.initial(s), spec, 10, SolveOptions(time_limit_s=5))
+    programs = StepPrograms(StepProblem(s, State.initial(s), spec), 10,
+                            SolveOptions(time_limit_s=5))
     nodes = StepSearch.of(programs, handover="always").skeleton.nodes(relays=False)
     for targets in itertools.combinations(spec.objects, 2):
         mine = [n.hands for n in nodes if n.targets == targets]
@@ -247,14 +251,15 @@ def relay_step():
 def test_the_default_search_finds_the_horizon_only_a_relay_makes_feasible() -> None:
     s, state, spec = relay_step()
     assert s.solver.handover == "auto"
-    mono = solve_step(s, state, spec, 11)
+    problem = StepProblem(s, state, spec)
+    mono = solve_step(problem, 11)
     assert mono.status is Status.OPTIMAL
-    found = search_step(s, state, spec, 11)
+    found = search_step(problem, 11)
     assert found.status is Status.OPTIMAL
     assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9)
     assert held_by_both(found)
     assert replayed_trace_satisfies(s, spec, found, state)
-    assert search_step(s, state, spec, 10).status is Status.INFEASIBLE
+    assert search_step(problem, 10).status is Status.INFEASIBLE
 
 
 def one_hand_shares_run_out(programs: StepPrograms, request: Request):
@@ -268,7 +273,7 @@ def one_hand_shares_run_out(programs: StepPrograms, request: Request):
 
 def test_relays_are_probed_when_the_nodes_without_them_are_left_undecided() -> None:
     s, state, spec = relay_step()
-    programs = StepPrograms(s, state, spec, 11, SolveOptions(time_limit_s=60))
+    programs = StepPrograms(StepProblem(s, state, spec), 11, SolveOptions(time_limit_s=60))
     found = StepSearch.of(programs, solver=one_hand_shares_run_out).feasible()
     assert found.status is Status.FEASIBLE and found.relays
     assert held_by_both(found.witness)
@@ -280,16 +285,16 @@ def test_plans_carried_up_a_horizon_change_nothing(seed: int) -> None:
     one more step, stands for a probe: the optimum found is that of a search from scratch."""
     s = random_scene(seed)
     spec = specification(s, [0, 1, 2])
-    state = State.initial(s)
+    problem = StepProblem(s, State.initial(s), spec)
     below: dict = {}
     carried_up = 0
     for T in range(3, 16):
-        carried = search_step(s, state, spec, T, below=below)
+        carried = search_step(problem, T, below=below)
         if carried.status.has_solution:
             break
         carried_up += len(below)
     assert carried_up > 0  # some horizon without a plan had relaxations with one
-    fresh = search_step(s, state, spec, T)
+    fresh = search_step(problem, T)
     assert carried.status is fresh.status is Status.OPTIMAL
     assert carried.cost == pytest.approx(fresh.cost, rel=1e-6, abs=1e-9)
     assert replayed_trace_satisfies(s, spec, carried)
@@ -312,7 +317,7 @@ def test_each_relaxation_is_solved_once_and_kept() -> None:
         answers.append((request, res.status))
         return res
 
-    programs = StepPrograms(s, State.initial(s), spec, mono.horizon,
+    programs = StepPrograms(StepProblem(s, State.initial(s), spec), mono.horizon,
                             SolveOptions(time_limit_s=30, mip_rel_gap=1e-7))
     search = StepSearch.of(programs, solver=counted)
     found = search.feasible()
@@ -343,10 +348,10 @@ def test_search_matches_the_monolithic_optimum_mid_carry(rule: int) -> None:
     held = [k for k in range(1, len(t.grasp) - 1) if t.grasp[k].any()]
     assert held, "the plan carries an object"
     for k in held[:3]:
-        state = State.at(t, k)
+        problem = StepProblem(s, State.at(t, k), spec)
         for T in range(1, 16):
-            mono = solve_step(s, state, spec, T)
-            found = search_step(s, state, spec, T)
+            mono = solve_step(problem, T)
+            found = search_step(problem, T)
             assert found.status.has_solution == mono.status.has_solution, (k, T)
             if mono.status.has_solution:
                 assert found.cost == pytest.approx(mono.cost, rel=1e-6, abs=1e-9), (k, T)
@@ -362,7 +367,7 @@ def test_the_plan_does_not_depend_on_the_number_of_workers() -> None:
     plans = []
     for workers in (1, 2):
         w = dataclasses.replace(s, solver=dataclasses.replace(s.solver, workers=workers))
-        plans.append(search_step(w, State.initial(s), spec, T).trajectory)
+        plans.append(search_step(StepProblem(w, State.initial(s), spec), T).trajectory)
     for a, b in zip(plans[0].arrays(), plans[1].arrays(), strict=True):
         np.testing.assert_array_equal(a, b)
 
@@ -391,7 +396,7 @@ class RunsOut:
         return self.slow is None or key in self.slow
 
     def search(self, s: Scenario, spec, T: int) -> StepSearch:
-        return StepSearch.of(StepPrograms(s, State.initial(s), spec, T,
+        return StepSearch.of(StepPrograms(StepProblem(s, State.initial(s), spec), T,
                                           SolveOptions(time_limit_s=32)), solver=self)
 
     @property
@@ -454,7 +459,7 @@ def test_a_composed_plan_does_not_close_its_node_when_the_joint_program_ran_out(
     s = random_scene(0)
     spec = specification(s, [0, 1, 2])
     mono = first_feasible(s, spec)
-    programs = JointRunsOut(s, State.initial(s), spec, mono.horizon,
+    programs = JointRunsOut(StepProblem(s, State.initial(s), spec), mono.horizon,
                             SolveOptions(time_limit_s=30))
     search = StepSearch.of(programs)
     found = search.feasible()
@@ -474,14 +479,15 @@ def test_an_incumbent_cuts_the_search_short_and_leaves_its_optimum(seed: int) ->
     spec = specification(s, [0, 1, 2])
     state = State.initial(s)
     T = first_feasible(s, with_no_throw(spec)).horizon
-    witness = search_step(s, state, with_no_throw(spec), T)
+    witness = search_step(StepProblem(s, state, with_no_throw(spec)), T)
     assert witness.status is Status.OPTIMAL
-    plain = search_step(s, state, spec, T)
-    from_witness = search_step(s, state, spec, T, incumbent=witness)
+    problem = StepProblem(s, state, spec)
+    plain = search_step(problem, T)
+    from_witness = search_step(problem, T, incumbent=witness)
     assert plain.status is from_witness.status is Status.OPTIMAL
     assert from_witness.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)
     assert from_witness.cost <= witness.cost + 1e-9
     assert replayed_trace_satisfies(s, spec, from_witness)
-    again = search_step(s, state, spec, T, incumbent=plain)
+    again = search_step(problem, T, incumbent=plain)
     assert again.status is Status.OPTIMAL
     assert again.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)

@@ -14,7 +14,7 @@ from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.mld import Rect, State
 from dualarm_mpc.model.plan import Plan, Segment, Trajectory
 from dualarm_mpc.model.scenario import Scenario, load_scenario
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning import sequential
 from dualarm_mpc.planning.sequential import PlanningError, transport
@@ -120,11 +120,11 @@ def test_objects_already_in_their_goal_need_no_step() -> None:
 def test_horizon_is_the_smallest_feasible_one() -> None:
     scenario = two_objects(rule=2)
     state = State.initial(scenario)
-    spec = specification(scenario, [0, 1])
-    res, _ = sequential.plan_step(scenario, state, spec)
+    problem = StepProblem(scenario, state, specification(scenario, [0, 1]))
+    res, _ = sequential.plan_step(problem)
     T = res.horizon
-    assert sequential.predict_horizon(scenario, state, spec) <= T
-    assert not solve_step(scenario, state, spec, T - 1).status.has_solution
+    assert sequential.predict_horizon(problem) <= T
+    assert not solve_step(problem, T - 1).status.has_solution
 
 
 def test_witness_policy_is_never_worse_than_its_witness() -> None:
@@ -133,16 +133,17 @@ def test_witness_policy_is_never_worse_than_its_witness() -> None:
     scenario = two_objects(rule=2)
     state = State.initial(scenario)
     spec = specification(scenario, [0, 1])
-    found = sequential.witness(scenario, state, spec, None)
+    problem = StepProblem(scenario, state, spec)
+    found = sequential.witness(problem, None)
     assert found is not None and found.trajectory is not None
-    res, _ = sequential.plan_step(scenario, state, spec)
+    res, _ = sequential.plan_step(problem)
     assert res.witness_cost == pytest.approx(found.cost) and res.witness_horizon == found.horizon
     assert res.cost <= found.cost + 1e-9 and res.horizon <= found.horizon
     # what the step claims proven holds for the monolithic MILP at its horizon
-    assert res.bound <= solve_step(scenario, state, spec, res.horizon).cost + 1e-6
+    assert res.bound <= solve_step(problem, res.horizon).cost + 1e-6
     exact = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
                                                                       horizons="exact"))
-    plain, _ = sequential.plan_step(exact, state, spec)
+    plain, _ = sequential.plan_step(StepProblem(exact, state, spec))
     assert plain.witness_cost is None and plain.minimal
     assert res.horizon >= plain.horizon  # the witness policy may trade horizon for cost
 
@@ -158,15 +159,15 @@ def test_what_a_step_says_of_its_shorter_horizons_holds(horizons: str) -> None:
                                             {**OBJECT2, "goal": "red"}],
                            solver={"time_limit_s": 60.0, "horizons": horizons})
     state = State.initial(scenario)
-    spec = specification(scenario, [0, 1])
-    res, _ = sequential.plan_step(scenario, state, spec)
+    problem = StepProblem(scenario, state, specification(scenario, [0, 1]))
+    res, _ = sequential.plan_step(problem)
     assert (res.passed_over is not None) == (horizons == "witness")
     assert res.minimal == (res.passed_over is None and not res.undecided)
     if res.witness_cost is not None:  # T₁ searched from the witness with the budget left
         assert res.horizon == res.witness_horizon and res.cost < res.witness_cost
     assert all(T < res.horizon for T in res.undecided)
-    for T in range(sequential.predict_horizon(scenario, state, spec), res.horizon):
-        mono = solve_step(scenario, state, spec, T)
+    for T in range(sequential.predict_horizon(problem), res.horizon):
+        mono = solve_step(problem, T)
         if res.passed_over is not None and T == res.passed_over[0]:
             assert mono.status.has_solution and res.passed_over[1] > res.cost
         elif T not in res.undecided and (res.passed_over is None or T < res.passed_over[0]):
@@ -175,9 +176,9 @@ def test_what_a_step_says_of_its_shorter_horizons_holds(horizons: str) -> None:
 
 def test_no_witness_where_no_throw_is_in_force() -> None:
     scenario = two_objects(rule=1)
-    state = State.initial(scenario)
-    assert sequential.witness(scenario, state, specification(scenario, [0, 1]), None) is None
-    res, _ = sequential.plan_step(scenario, state, specification(scenario, [0, 1]))
+    problem = StepProblem(scenario, State.initial(scenario), specification(scenario, [0, 1]))
+    assert sequential.witness(problem, None) is None
+    res, _ = sequential.plan_step(problem)
     assert res.witness_cost is None and res.minimal
 
 

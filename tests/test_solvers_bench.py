@@ -40,13 +40,12 @@ def test_the_summary_compares_like_with_like() -> None:
 def test_one_step_on_every_installed_backend(backend) -> None:
     from dualarm_mpc.model.mld import State
     from dualarm_mpc.model.scenario import load_scenario
-    from dualarm_mpc.model.spec import specification
+    from dualarm_mpc.model.spec import StepProblem, specification
     from dualarm_mpc.planning.sequential import predict_horizon
 
     s = load_scenario("table1_vd", {"m_o": 1, "n_o": 1, "rule": 2, "delivery": "reach"})
-    spec = specification(s, [0])
-    state = State.initial(s)
-    T = predict_horizon(s, state, spec)
-    got = [solvers.solve_one(s, state, spec, T + 1, backend, m) for m in solvers.METHODS]
+    problem = StepProblem(s, State.initial(s), specification(s, [0]))
+    T = predict_horizon(problem)
+    got = [solvers.solve_one(problem, T + 1, backend, m) for m in solvers.METHODS]
     assert [g["status"] for g in got] == ["optimal", "optimal"]
     assert got[0]["cost"] == pytest.approx(got[1]["cost"], rel=2e-4)

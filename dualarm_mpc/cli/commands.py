@@ -156,9 +156,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     def tried(t) -> None:  # a horizon without a plan: say so, a search is never silent
         res = t.result
         if export is not None and export.error is None:
-            form = HorizonProgram(scenario, t.state, list(t.spec.objects),
-                                  res.horizon).standard_form(t.spec)
-            export.add(t.step, t.spec, res.horizon, res.status, res.cost, form)
+            step = t.problem
+            form = HorizonProgram(step.scenario, step.state, list(step.spec.objects),
+                                  res.horizon).standard_form(step.spec)
+            export.add(t.step, step.spec, res.horizon, res.status, res.cost, form)
         if not res.status.has_solution:
             said[0] = time.perf_counter()
             by = "  (CP-SAT)" if res.message.startswith("CP-SAT") else ""

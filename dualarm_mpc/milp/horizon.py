@@ -36,7 +36,7 @@ from dualarm_mpc.model.mld import Model, Rect, State, in_goal, reachability, rep
 from dualarm_mpc.model.plan import Trajectory
 from dualarm_mpc.model.route import Order
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import Specification
+from dualarm_mpc.model.spec import Specification, StepProblem
 
 
 @dataclass(frozen=True)
@@ -362,20 +362,21 @@ class HorizonProgram:
                                            wall_time_s=wall), frozenset(active)
 
 
-def build_program(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                  pruning: bool | None = None):
+def build_program(problem: StepProblem, horizon: int, pruning: bool | None = None):
     """The MILP of one horizon as one MathematicalProgram: model, specification, cost.
-    ``state`` covers all objects. Returns the program, its variables, model and local state."""
-    h = HorizonProgram(scenario, state, list(spec.objects), horizon, pruning)
-    return h.program(spec), h.x, h.model, h.local_state
+    ``problem.state`` covers all objects. Returns the program, its variables, model and local
+    state."""
+    h = HorizonProgram(problem.scenario, problem.state, list(problem.spec.objects), horizon,
+                       pruning)
+    return h.program(problem.spec), h.x, h.model, h.local_state
 
 
-def solve_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None = None,
+def solve_step(problem: StepProblem, horizon: int, options: SolveOptions | None = None,
                start: Callable[[program.HorizonVariables], Start] | None = None,
                pruning: bool | None = None) -> StepResult:
     """Build and solve the monolithic MILP of one horizon (:meth:`HorizonProgram.solve`).
     ``start(x)`` may give a MIP start for the horizon's variables ``x``."""
+    scenario, state, spec = problem.scenario, problem.state, problem.spec
     options = options or solve_options(scenario)
     t0 = time.perf_counter()
     h = HorizonProgram(scenario, state, list(spec.objects), horizon, pruning)

@@ -143,6 +143,24 @@ class Specification:
         return all(survives_idling(f) for f in self.events + [f for _, f in self.rules])
 
 
+@dataclass(frozen=True)
+class StepProblem:
+    """The problem of one sequential step, Algorithm 1 line 3 ("system, variables, LTL of a
+    step"): the ``scenario`` (the system: the robot, the goals, the solver's settings), the
+    ``state`` the step starts from (over all objects) and the step's specification ``spec``
+    (its objects, m_o and rules). What the horizon's MILP (``horizon.HorizonProgram``), the
+    skeleton search and the planner of a step are given, as one value."""
+
+    scenario: Scenario
+    state: State
+    spec: Specification
+
+    def with_spec(self, spec: Specification) -> StepProblem:
+        """The same step from the same state, under ``spec`` (a restriction or relaxation of
+        this one's: ``with_no_throw``, ``confined``, ``restricted``, fewer rules)."""
+        return replace(self, spec=spec)
+
+
 MAX_IDLING_TRACES = 20_000  # short traces enumerated per rule instance; beyond, "not known"
 
 

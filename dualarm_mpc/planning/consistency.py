@@ -66,7 +66,13 @@ from dualarm_mpc.milp.horizon import HorizonProgram, solve_options
 from dualarm_mpc.milp.solver import SolveOptions, Status
 from dualarm_mpc.model.mld import Rect, State, delivered_objects, target_box
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import Specification, confined, rule_formulas, specification
+from dualarm_mpc.model.spec import (
+    Specification,
+    StepProblem,
+    confined,
+    rule_formulas,
+    specification,
+)
 from dualarm_mpc.planning.sequential import select_objects
 
 JOINT_TIME_LIMIT_S = 20.0  # for the first step's program; beyond, "undecided"
@@ -135,23 +141,25 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
                       if v is Status.TIME_LIMIT)
     if joint and todo and not conflicts and not undecided:
         spec = confined(specification(scenario, first, rules=named))
+        problem = StepProblem(scenario, state, spec)
         quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s,
                                                               JOINT_TIME_LIMIT_S))
-        status = _feasible(scenario, state, spec, quick)
+        status = _feasible(problem, quick)
         names = tuple(scenario.task.objects[j].name for j in first)
         if status is Status.INFEASIBLE:
-            conflicts = (_joint_conflict(scenario, state, spec, names, quick),)
+            conflicts = (_joint_conflict(problem, names, quick),)
         elif status is Status.TIME_LIMIT:
             undecided = (f"the first step ({', '.join(names)})",)
     return Report(conflicts, undecided, T)
 
 
-def _feasible(scenario: Scenario, state: State, spec: Specification, options: SolveOptions,
-              anywhere: bool = False) -> Status:
-    """Whether ``spec`` has a plan within the largest horizon, decided by its MILPs without
-    cost (the first solution ends a search): FEASIBLE, INFEASIBLE or TIME_LIMIT. The largest
-    horizon alone decides when feasibility is monotone in T; otherwise every horizon is tried.
-    ``anywhere``: from every start of the hands in their range (``state``'s velocities)."""
+def _feasible(problem: StepProblem, options: SolveOptions, anywhere: bool = False) -> Status:
+    """Whether ``problem.spec`` has a plan within the largest horizon, decided by its MILPs
+    without cost (the first solution ends a search): FEASIBLE, INFEASIBLE or TIME_LIMIT. The
+    largest horizon alone decides when feasibility is monotone in T; otherwise every horizon is
+    tried. ``anywhere``: from every start of the hands in their range (``problem.state``'s
+    velocities)."""
+    scenario, state, spec = problem.scenario, problem.state, problem.spec
     cap = scenario.solver.max_horizon
     undecided = False
     for T in [cap] if spec.monotone_in_horizon() else range(1, cap + 1):
@@ -180,16 +188,17 @@ def _cases(spec: Specification) -> list[tuple[Specification, np.ndarray | None]]
             (both, None)]
 
 
-def _minimal(scenario: Scenario, state: State, spec: Specification, options: SolveOptions,
-             anywhere: bool = False) -> Specification:
-    """``spec``, proven infeasible, with a minimal set of its rules that keeps it so (a deletion
-    filter: a rule stays only if dropping it makes a plan). Rules without an instance here are
-    dropped at once: they constrain nothing."""
+def _minimal(problem: StepProblem, options: SolveOptions, anywhere: bool = False
+             ) -> Specification:
+    """``problem.spec``, proven infeasible, with a minimal set of its rules that keeps it so (a
+    deletion filter: a rule stays only if dropping it makes a plan). Rules without an instance
+    here are dropped at once: they constrain nothing."""
+    spec = problem.spec
     needed = [r for r in spec.rules if r[1] != TRUE]
     for rule in list(needed):
         rest = tuple(r for r in needed if r is not rule)
-        if _feasible(scenario, state, dataclasses.replace(spec, rules=rest), options,
-                     anywhere) is Status.INFEASIBLE:
+        fewer = problem.with_spec(dataclasses.replace(spec, rules=rest))
+        if _feasible(fewer, options, anywhere) is Status.INFEASIBLE:
             needed = list(rest)
     return dataclasses.replace(spec, rules=tuple(needed))
 
@@ -199,15 +208,16 @@ def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[st
     """Object j on its own (``anywhere``: with the hands starting anywhere): FEASIBLE,
     TIME_LIMIT, or the conflict with a minimal rule set."""
     spec = confined(specification(scenario, [j], m_o=1, rules=named))
-    status = _feasible(scenario, state, spec, options, anywhere)
+    problem = StepProblem(scenario, state, spec)
+    status = _feasible(problem, options, anywhere)
     if status is not Status.INFEASIBLE:
         return status
-    needed = _minimal(scenario, state, spec, options, anywhere)
+    needed = _minimal(problem, options, anywhere)
     # Does any hand ever hold it under these rules? (No task: m_o = 0.)
-    held = dataclasses.replace(needed, m_o=0, targets=(), rules=needed.rules + (
-        ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),))
+    held = problem.with_spec(dataclasses.replace(needed, m_o=0, targets=(), rules=needed.rules + (
+        ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),)))
     never_held = (bool(needed.rules)
-                  and _feasible(scenario, state, held, options, anywhere) is Status.INFEASIBLE)
+                  and _feasible(held, options, anywhere) is Status.INFEASIBLE)
     names = tuple(name for name, _ in needed.rules)
     return Conflict((scenario.task.objects[j].name,), names,
                     _reason(scenario, j, names, never_held))
@@ -248,10 +258,11 @@ def _beyond_reach(scenario: Scenario, j: int) -> str:
     return ""
 
 
-def _joint_conflict(scenario: Scenario, state: State, spec: Specification,
-                    names: tuple[str, ...], options: SolveOptions) -> Conflict:
+def _joint_conflict(problem: StepProblem, names: tuple[str, ...], options: SolveOptions
+                    ) -> Conflict:
     """The first step has no plan although each object has one: a minimal set of its rules."""
-    rules = tuple(name for name, _ in _minimal(scenario, state, spec, options).rules)
+    scenario, spec = problem.scenario, problem.spec
+    rules = tuple(name for name, _ in _minimal(problem, options).rules)
     said = " and ".join(rules) if rules else "the bounds alone"
     return Conflict(names, rules, f"{spec.m_o} of {', '.join(names)}: no plan delivers them "
                     f"together within {scenario.solver.max_horizon} steps under {said}, though "

@@ -40,6 +40,10 @@ from the measured state (Algorithm 1, one step at a time):
 The state (:class:`MpcState`) is a frozen value the caller keeps (the LeafSystem keeps it in its
 Context); the replan log is the caller's to keep. In real time, a search carried over to the next
 periods and the worker thread that runs it are the :class:`Replanner`'s, never in that state.
+
+Why one module of this length: the replan, the next step planned ahead and the state a replan
+starts from are one Replanner's, over one :class:`MpcState`, one worker and one ``_prepare``;
+apart, each would reach into the others' private parts.
 """
 
 from __future__ import annotations
@@ -66,7 +70,7 @@ from dualarm_mpc.model.mld import (
 )
 from dualarm_mpc.model.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import RULE_TEXT, Specification, rule_formulas, specification
+from dualarm_mpc.model.spec import RULE_TEXT, StepProblem, rule_formulas, specification
 from dualarm_mpc.model.verify import atom_trace
 from dualarm_mpc.planning import delivery
 from dualarm_mpc.planning.replan_worker import ReplanWorker, Search
@@ -92,7 +96,7 @@ ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
 PLANNED_AHEAD = "planned ahead while the last step ran"
 _ON_GRID = 1e-6  # of a step: a replan at the plan's step k exactly
 
-# solve(scenario, state, spec, T, options, start=...) -> StepResult: one horizon's solve.
+# solve(problem, T, options, start=...) -> StepResult: one horizon's solve (problem: StepProblem).
 Solve = Callable[..., StepResult]
 Goals = dict[str, list[float]]  # goal name → box [xmin, xmax, ymin, ymax]
 
@@ -195,7 +199,7 @@ class Replanner:
 
     def propagated(self, t: float, s: MpcState, m: State, latency: float) -> State:
         """Where the robot will be when the replan's plan takes over, ``latency`` after ``t``:
-        the state a replan at ``t`` would start from (:meth:`_committed_state`: the plan in
+        the state a replan at ``t`` would start from (:meth:`!_committed_state`: the plan in
         force's own where the measurement matches it, the measurement where it has left it)
         carried on through the model (eqs. 1, 8 and the one-step slide,
         :func:`~dualarm_mpc.model.mld.replay`) by the plan in force's force and grasps over that
@@ -228,7 +232,7 @@ class Replanner:
         worker = self._worker
         if self.search is not None:
             job, future = self.search.job, self.search.future
-            if job.scenario.task.goals != goals or not self._still(job, measured):
+            if job.problem.scenario.task.goals != goals or not self._still(job, measured):
                 worker.abandon()  # the world moved on: plan afresh below
             elif not worker.within_budget(future):
                 return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
@@ -313,7 +317,7 @@ class Replanner:
                        step_target=target)
         work = None if self.realtime else WorkLimit(sc.solver.replan_program_limit)
         options = dataclasses.replace(self._options, interrupt=Interrupt(), work=work)
-        return _Job(sc, state, spec, start, options, idle, changes)
+        return _Job(StepProblem(sc, state, spec), start, options, idle, changes)
 
     def _solve(self, job: _Job) -> StepResult | None:
         """The shortest feasible horizon (with cost (17) alone, a longer horizon lets the plan
@@ -321,9 +325,9 @@ class Replanner:
         worker."""
         wall0 = time.perf_counter()
         res = None
-        sc, state, spec = job.scenario, job.state, job.spec
-        for T in range(predict_horizon(sc, state, spec), sc.solver.max_horizon + 1):
-            res = self._solve_horizon(sc, state, spec, T, job.options, start=job.start)
+        problem = job.problem
+        for T in range(predict_horizon(problem), problem.scenario.solver.max_horizon + 1):
+            res = self._solve_horizon(problem, T, job.options, start=job.start)
             if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
                 break
             if job.options.work is not None and job.options.work.spent():
@@ -338,20 +342,20 @@ class Replanner:
         """The plan of a finished search, starting now (a search carried over started from a
         state the robot still holds at rest); the next step is then planned ahead from its
         end."""
-        sc = job.scenario
+        sc, start = job.problem.scenario, job.problem.state
         if res is None or not res.status.has_solution:
             status = res.status.value if res else "no_horizon"
             return _record(s, t, wall0, status, res, note="kept the previous plan", **job.changes)
-        objects = list(job.spec.objects)
-        traj = embed_step(sc, job.state, objects, res.trajectory)
+        objects = list(job.problem.spec.objects)
+        traj = embed_step(sc, start, objects, res.trajectory)
         plan = TimedTrajectory(t, sc.robot.dt, traj)
         new, record = _record(s, t, wall0, res.status.value, res, note=note, plan=plan,
                               horizon_end=t + res.horizon * sc.robot.dt,
                               grasp_start=(tuple(objects), res.trajectory.grasp),
                               proven=_step_key(job) if res.status is Status.OPTIMAL else None,
-                              standing=standing(job.state, objects, sc.robot.dt),
+                              standing=standing(start, objects, sc.robot.dt),
                               **job.changes)
-        self._plan_ahead(new, job.state, sc.task.goals)
+        self._plan_ahead(new, start, sc.task.goals)
         return new, record
 
     # -- the next step, planned ahead ---------------------------------------------------------
@@ -398,7 +402,7 @@ class Replanner:
         ahead = self._ahead
         if ahead is None:
             return None
-        if ahead.job.scenario.task.goals != job.scenario.task.goals:
+        if ahead.job.problem.scenario.task.goals != job.problem.scenario.task.goals:
             self._drop_ahead()
             return None
         if t < ahead.due - 1e-9:
@@ -435,23 +439,25 @@ class Replanner:
         k, within = step_at(s.plan, t)
         if within > _ON_GRID or not 1 <= k < traj.steps:
             return False
-        x, objects = job.state, list(job.spec.objects)
+        sc, x, spec = job.problem.scenario, job.problem.state, job.problem.spec
+        objects = list(spec.objects)
         pairs = [(x.hand_pos, traj.hand_pos[k]), (x.hand_vel, traj.hand_vel[k]),
                  (x.object_pos[objects], traj.object_pos[k][objects]),
                  (x.object_vel[objects], traj.object_vel[k][objects]),
                  (x.grasp[:, objects], traj.grasp[k][:, objects])]
         if any(np.abs(a - b).max(initial=0) > POSITION_TOL for a, b in pairs):
             return False
-        if job.scenario.task.object_clearance is not None and not _within(
-                standing(x, objects, job.scenario.robot.dt), s.standing):
+        if sc.task.object_clearance is not None and not _within(
+                standing(x, objects, sc.robot.dt), s.standing):
             return False  # an object outside the step moved into its way (C1)
-        holds = atom_trace(job.scenario, traj, k, traj.steps)
-        return evaluate(job.spec.task(), holds, traj.steps - k)
+        holds = atom_trace(sc, traj, k, traj.steps)
+        return evaluate(spec.task(), holds, traj.steps - k)
 
     def _still(self, job: _Job, m: State) -> bool:
         """Whether the robot and the objects still rest where the search carried over started."""
         pos = np.concatenate([m.hand_pos, m.object_pos])
-        was = np.concatenate([job.state.hand_pos, job.state.object_pos])
+        start = job.problem.state
+        was = np.concatenate([start.hand_pos, start.object_pos])
         speed = np.abs(np.concatenate([m.hand_vel, m.object_vel])).max(initial=0)
         return bool(np.abs(pos - was).max(initial=0) < SNAP_POSITION and speed < SNAP_VELOCITY)
 
@@ -533,10 +539,12 @@ def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | 
 def _same_problem(a: _Job, b: _Job) -> bool:
     """Whether two replans solve the same problem: the same objects, m_o and goals, the same
     grasps, and start states within the snap tolerances of each other."""
-    if (a.spec.objects, a.spec.m_o, a.scenario.task.goals, a.start is None) != \
-            (b.spec.objects, b.spec.m_o, b.scenario.task.goals, b.start is None):
+    if (a.problem.spec.objects, a.problem.spec.m_o, a.problem.scenario.task.goals,
+         a.start is None) != \
+            (b.problem.spec.objects, b.problem.spec.m_o, b.problem.scenario.task.goals,
+             b.start is None):
         return False
-    x, y = a.state, b.state
+    x, y = a.problem.state, b.problem.state
     if not np.array_equal(x.grasp, y.grasp):
         return False
     return all(np.abs(p - q).max(initial=0) <= tol for p, q, tol in (
@@ -555,17 +563,16 @@ def _within(now: tuple[np.ndarray, np.ndarray], then: tuple[np.ndarray, np.ndarr
 
 def _step_key(job: _Job) -> tuple:
     """What a plan is optimal for: the step's objects, m_o and the goals."""
-    goals = tuple(sorted((name, tuple(box)) for name, box in job.scenario.task.goals.items()))
-    return job.spec.objects, job.spec.m_o, goals
+    scenario, spec = job.problem.scenario, job.problem.spec
+    goals = tuple(sorted((name, tuple(box)) for name, box in scenario.task.goals.items()))
+    return spec.objects, spec.m_o, goals
 
 
 @dataclass(frozen=True)
 class _Job:
     """One replan's search: what to solve, from which state, and how to stop it."""
 
-    scenario: Scenario  # with the goals the replan saw
-    state: State
-    spec: Specification
+    problem: StepProblem  # its scenario with the goals the replan saw
     start: Callable | None  # MIP start for the monolithic MILP
     options: SolveOptions  # with the Interrupt that stops it
     idle: bool  # the robot rests with no plan left: a late result still applies

@@ -21,7 +21,7 @@ from dualarm_mpc.model.mld import Model, Rect, State, delivered_objects, in_goal
 from dualarm_mpc.model.plan import Plan, Segment, Trajectory
 from dualarm_mpc.model.route import horizon_bound
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import Specification, rule_formulas, specification, with_no_throw
+from dualarm_mpc.model.spec import StepProblem, rule_formulas, specification, with_no_throw
 from dualarm_mpc.search.relaxations import Key
 from dualarm_mpc.search.skeleton import horizon_has_plan, horizon_ruled_out, search_step
 from dualarm_mpc.search.subprograms import satisfies
@@ -57,12 +57,12 @@ class PlanningError(RuntimeError):
 
 @dataclass(frozen=True)
 class HorizonTried:
-    """One horizon the planner tried: the ``step``-th sequential step (from 1), the state it
-    starts from, its specification and what the solve of that horizon gave."""
+    """One horizon the planner tried: the ``step``-th sequential step (from 1), its
+    ``problem`` (scenario, the state it starts from, its specification) and what the solve of
+    that horizon gave."""
 
     step: int
-    state: State
-    spec: Specification
+    problem: StepProblem
     result: StepResult
 
 
@@ -75,9 +75,8 @@ def _stop_if_asked(options: SolveOptions | None) -> None:
         raise Interrupted
 
 
-def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                  options: SolveOptions | None = None, start=None,
-                  below: dict[Key, StepResult] | None = None,
+def solve_horizon(problem: StepProblem, horizon: int, options: SolveOptions | None = None,
+                  start=None, below: dict[Key, StepResult] | None = None,
                   incumbent: StepResult | None = None) -> StepResult:
     """The optimum of one horizon by the scenario's ``solver.search``: the skeleton search or
     the monolithic MILP (the same optimum; the search is much faster on hard steps). ``start``
@@ -85,17 +84,18 @@ def solve_horizon(scenario: Scenario, state: State, spec: Specification, horizon
     carries the search's relaxations from one horizon to the next, and ``incumbent`` is a plan of
     the horizon to start the search's optimisation from
     (:func:`~dualarm_mpc.search.skeleton.search_step`)."""
-    if scenario.solver.search == "monolithic":
-        return solve_step(scenario, state, spec, horizon, options, start)
-    return search_step(scenario, state, spec, horizon, options, below, incumbent)
+    if problem.scenario.solver.search == "monolithic":
+        return solve_step(problem, horizon, options, start)
+    return search_step(problem, horizon, options, below, incumbent)
 
 
-def predict_horizon(scenario: Scenario, state: State, spec: Specification) -> int:
+def predict_horizon(problem: StepProblem) -> int:
     """predictT: the smallest horizon the reachability bound does not rule out (§IV-C.2) — the
     m_o-th smallest step at which an object of the step can first be in its goal — or, where
     no-throw (18) holds for every object of the step, the route bound of the hands
     (:func:`~dualarm_mpc.model.route.horizon_bound`) if larger: the horizons below either have no
     plan."""
+    scenario, state, spec = problem.scenario, problem.state, problem.spec
     objects = list(spec.objects)
     model = Model.from_scenario(scenario, objects)
     cap = scenario.solver.max_horizon
@@ -120,8 +120,7 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
     return sorted(sorted(remaining, key=lambda j: (estimate(j), j))[: scenario.task.n_o])
 
 
-def plan_step(scenario: Scenario, state: State, spec: Specification,
-              options: SolveOptions | None = None,
+def plan_step(problem: StepProblem, options: SolveOptions | None = None,
               on_try: Callable[[StepResult], None] | None = None) -> tuple[StepResult, float]:
     """Lines 4–6 of Algorithm 1 by the scenario's ``solver.horizons`` policy. Returns the
     result (with :attr:`~dualarm_mpc.milp.horizon.StepResult.minimal` and the witness's cost and
@@ -134,22 +133,23 @@ def plan_step(scenario: Scenario, state: State, spec: Specification,
     worse than its witness."""
     t0 = time.perf_counter()
     found = None
-    if scenario.solver.horizons == "witness" and scenario.solver.search == "skeleton":
-        found = witness(scenario, state, spec, options)
+    solver = problem.scenario.solver
+    if solver.horizons == "witness" and solver.search == "skeleton":
+        found = witness(problem, options)
     if found is None:
-        res = first_plan(scenario, state, spec, options, on_try)
+        res = first_plan(problem, options, on_try)
     else:
-        res = below_witness(scenario, state, spec, found, options, on_try)
+        res = below_witness(problem, found, options, on_try)
     return res, time.perf_counter() - t0
 
 
-def witness(scenario: Scenario, state: State, spec: Specification,
-            options: SolveOptions | None) -> StepResult | None:
+def witness(problem: StepProblem, options: SolveOptions | None) -> StepResult | None:
     """The step's witness: the plan of ``spec`` with no-throw (18) for every object
     (:func:`~dualarm_mpc.model.spec.with_no_throw`, a restriction: quick where ``spec`` allows
     relays), at its own first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by
     the evaluator (:func:`~dualarm_mpc.search.subprograms.satisfies`); None where ``spec`` has
     no-throw already, or the restriction has no plan or none in time."""
+    scenario, state, spec = problem.scenario, problem.state, problem.spec
     restricted = with_no_throw(spec)
     if restricted is None:
         return None
@@ -163,18 +163,17 @@ def witness(scenario: Scenario, state: State, spec: Specification,
     alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
                                                                      prover="none"))
     try:
-        res = first_plan(alone, state, restricted, options)
+        res = first_plan(dataclasses.replace(problem, scenario=alone, spec=restricted), options)
     except PlanningError:
         return None
-    if not satisfies(scenario, state, spec, model, res.trajectory):
+    if not satisfies(problem, model, res.trajectory):
         return None
     # Its solver values are those of the restriction's program (other LTL columns): a MIP start
     # from its forces and grasps instead (subprograms._start).
     return dataclasses.replace(res, solution=None, variables=None)
 
 
-def below_witness(scenario: Scenario, state: State, spec: Specification, found: StepResult,
-                  options: SolveOptions | None,
+def below_witness(problem: StepProblem, found: StepResult, options: SolveOptions | None,
                   on_try: Callable[[StepResult], None] | None = None) -> StepResult:
     """Algorithm 1 bounded by the witness ``found`` (horizon T₁, cost c_W): the horizons from
     predictT up to T₁ are searched for the first with a plan, as :func:`first_plan` does (T₁
@@ -192,22 +191,22 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
     undecided to have no plan. The step's horizon is proven minimal
     (:attr:`~dualarm_mpc.milp.horizon.StepResult.minimal`) when every horizon below it was proven to
     have no plan, by either."""
-    options = options or solve_options(scenario)
+    options = options or solve_options(problem.scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
-    undecided = list(range(predict_horizon(scenario, state, spec), found.horizon + 1))
+    undecided = list(range(predict_horizon(problem), found.horizon + 1))
     left_open: set[int] = set()  # the horizons the search has left undecided once
     first = None  # the plan of the lowest horizon that has one
     slice_s = FIRST_SLICE_SHARE * budget
 
     def solve(T: int, o: SolveOptions, incumbent: StepResult | None) -> StepResult:
-        res = solve_horizon(scenario, state, spec, T, o, incumbent=incumbent)
+        res = solve_horizon(problem, T, o, incumbent=incumbent)
         _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
         if on_try:
             on_try(res)
         return res
 
-    with second_prover(scenario, state, spec, options, slice_s, on_try) as prover:
+    with second_prover(problem, options, slice_s, on_try) as prover:
         while undecided:
             for T in list(undecided):
                 undecided = [t for t in undecided if t not in prover.proofs()]
@@ -263,8 +262,7 @@ def below_witness(scenario: Scenario, state: State, spec: Specification, found: 
                                passed_over=passed_over)
 
 
-def first_plan(scenario: Scenario, state: State, spec: Specification,
-               options: SolveOptions | None = None,
+def first_plan(problem: StepProblem, options: SolveOptions | None = None,
                on_try: Callable[[StepResult], None] | None = None) -> StepResult:
     """Lines 4–6 of Algorithm 1 as the paper: from predictT, raise T until a plan is found (an
     infeasible or timed-out horizon counts as "not yet"; the result's ``minimal`` says whether
@@ -279,22 +277,22 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
     rule it out, no horizon has a plan, and the conflict is diagnosed at once instead of after every
     horizon."""
     t0 = time.perf_counter()
+    scenario = problem.scenario
     cap = scenario.solver.max_horizon
     last = None
-    check_cap = scenario.solver.search == "skeleton" and spec.monotone_in_horizon()
+    check_cap = scenario.solver.search == "skeleton" and problem.spec.monotone_in_horizon()
     below: dict[Key, StepResult] = {}  # the relaxations with a plan, from horizon to horizon
     undecided: list[int] = []  # the horizons tried without a plan or a proof of none
     options = options or solve_options(scenario)
     first_slice = PROVER_FIRST_SLICE_SHARE * options.time_limit_s
-    with second_prover(scenario, state, spec, options, first_slice, on_try) as prover:
-        for T in range(predict_horizon(scenario, state, spec), cap + 1):
+    with second_prover(problem, options, first_slice, on_try) as prover:
+        for T in range(predict_horizon(problem), cap + 1):
             _stop_if_asked(options)
             if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
                 check_cap = False  # once
-                if horizon_ruled_out(scenario, state, spec, cap, CAP_CHECK_TIME_S, options):
-                    raise PlanningError(diagnose(scenario, state, spec, None, options),
-                                        proven=True)
-            res = solve_horizon(scenario, state, spec, T, options, below=below)
+                if horizon_ruled_out(problem, cap, CAP_CHECK_TIME_S, options):
+                    raise PlanningError(diagnose(problem, None, options), proven=True)
+            res = solve_horizon(problem, T, options, below=below)
             _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
             if on_try:
                 on_try(res)
@@ -311,18 +309,18 @@ def first_plan(scenario: Scenario, state: State, spec: Specification,
     if last is not None and last.status.has_solution:
         return dataclasses.replace(last, undecided=tuple(undecided),
                                    proofs=_shorter(proofs, last.horizon))
-    raise PlanningError(diagnose(scenario, state, spec, last, options), proven=not undecided)
+    raise PlanningError(diagnose(problem, last, options), proven=not undecided)
 
 
 @contextmanager
-def second_prover(scenario: Scenario, state: State, spec: Specification,
-                  options: SolveOptions, first_slice_s: float,
+def second_prover(problem: StepProblem, options: SolveOptions, first_slice_s: float,
                   on_try: Callable[[StepResult], None] | None = None) -> Iterator:
     """The scenario's second prover (``solver.prover``) of the step's horizons, for the length
     of a ``with``: :class:`~dualarm_mpc.milp.cpsat.Prover` on the horizons' programs, each proof
     told to ``on_try`` as an infeasible horizon at the end; or, with ``none``, one that proves
     nothing. Never in a replan: ``mpc.py`` solves its horizons itself, in lockstep by counted work
     alone."""
+    scenario, state, spec = problem.scenario, problem.state, problem.spec
     if scenario.solver.prover == "none":
         yield _NoProver()
         return
@@ -360,11 +358,12 @@ class _NoProver:
         return {}
 
 
-def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepResult | None,
-             options: SolveOptions | None) -> str:
+def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOptions | None
+             ) -> str:
     """Why no plan exists within the horizon cap: which rules, dropped, make the task feasible
     (each decided at the cap: by the skeleton search's feasibility pass, or the monolithic MILP
     stopped at its first solution)."""
+    scenario, spec = problem.scenario, problem.spec
     T = scenario.solver.max_horizon
     objects = [scenario.task.objects[j].name for j in spec.objects]
     status = f" (last status: {last.status.value})" if last else ""
@@ -374,10 +373,10 @@ def diagnose(scenario: Scenario, state: State, spec: Specification, last: StepRe
                                 mip_rel_gap=1.0)
 
     def feasible(rules) -> Status:
-        s = dataclasses.replace(spec, rules=tuple(rules))
+        fewer = problem.with_spec(dataclasses.replace(spec, rules=tuple(rules)))
         if scenario.solver.search == "skeleton":
-            return horizon_has_plan(scenario, state, s, T, quick)
-        return solve_step(scenario, state, s, T, quick).status
+            return horizon_has_plan(fewer, T, quick)
+        return solve_step(fewer, T, quick).status
 
     alone = feasible([])
     if alone is Status.INFEASIBLE:
@@ -437,17 +436,17 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
         )
 
     def tried(res: StepResult) -> None:  # within plan_step: of the step being planned
-        on_try(HorizonTried(len(segments) + 1, state, spec, res))
+        on_try(HorizonTried(len(segments) + 1, problem, res))
 
     for _ in range(3 * scenario.n_objects):  # each step delivers >= 1 object unless stuck
         remaining = [j for j in range(scenario.n_objects) if not done[j]]
         if not remaining:
             break
         objects = select_objects(scenario, state, remaining)
-        spec = specification(scenario, objects, rules=rules)
+        problem = StepProblem(scenario, state, specification(scenario, objects, rules=rules))
         cpu0 = time.process_time()
         try:
-            res, total = plan_step(scenario, state, spec, options, on_try and tried)
+            res, total = plan_step(problem, options, on_try and tried)
         except Interrupted:
             return finish(partial=True)
         except PlanningError as err:

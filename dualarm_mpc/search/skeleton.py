@@ -50,9 +50,8 @@ import numpy as np
 
 from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import SolveOptions, Status
-from dualarm_mpc.model.mld import N_HANDS, State
-from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import Specification, untouchable
+from dualarm_mpc.model.mld import N_HANDS
+from dualarm_mpc.model.spec import StepProblem, untouchable
 from dualarm_mpc.search.relaxations import (
     FETCH,
     AloneKey,
@@ -566,36 +565,35 @@ class StepSearch:
 
 
 @contextmanager
-def _searching(scenario: Scenario, state: State, spec: Specification, horizon: int,
-               options: SolveOptions | None, below: dict[Key, StepResult] | None = None
-               ) -> Iterator[StepSearch]:
+def _searching(problem: StepProblem, horizon: int, options: SolveOptions | None,
+               below: dict[Key, StepResult] | None = None) -> Iterator[StepSearch]:
     """A :class:`StepSearch` with the scenario's workers, for the length of a ``with``."""
-    options = options or solve_options(scenario)
-    with ThreadPoolExecutor(scenario.solver.workers) as pool:
-        programs = StepPrograms(scenario, state, spec, horizon, options, pool)
-        yield StepSearch.of(programs, scenario.solver.handover, below)
+    solver = problem.scenario.solver
+    options = options or solve_options(problem.scenario)
+    with ThreadPoolExecutor(solver.workers) as pool:
+        programs = StepPrograms(problem, horizon, options, pool)
+        yield StepSearch.of(programs, solver.handover, below)
 
 
-def horizon_ruled_out(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                      time_limit_s: float, options: SolveOptions | None = None) -> bool:
+def horizon_ruled_out(problem: StepProblem, horizon: int, time_limit_s: float,
+                      options: SolveOptions | None = None) -> bool:
     """Whether the one-hand and one-object relaxations prove that ``horizon`` has no plan
     (within ``time_limit_s``; False when they cannot tell, or ``options.interrupt`` stops
     them)."""
-    options = replace(options or solve_options(scenario), time_limit_s=time_limit_s)
-    with _searching(scenario, state, spec, horizon, options) as search:
+    options = replace(options or solve_options(problem.scenario), time_limit_s=time_limit_s)
+    with _searching(problem, horizon, options) as search:
         return search.ruled_out()
 
 
-def horizon_has_plan(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                     options: SolveOptions | None = None) -> Status:
+def horizon_has_plan(problem: StepProblem, horizon: int, options: SolveOptions | None = None
+                     ) -> Status:
     """Whether ``horizon`` admits a plan (the feasibility pass alone): ``FEASIBLE``,
     ``INFEASIBLE``, or ``TIME_LIMIT`` when the time limit left it undecided."""
-    with _searching(scenario, state, spec, horizon, options) as search:
+    with _searching(problem, horizon, options) as search:
         return search.feasible().status
 
 
-def search_step(scenario: Scenario, state: State, spec: Specification, horizon: int,
-                options: SolveOptions | None = None,
+def search_step(problem: StepProblem, horizon: int, options: SolveOptions | None = None,
                 below: dict[Key, StepResult] | None = None,
                 incumbent: StepResult | None = None) -> StepResult:
     """The skeleton search of one horizon; the same optimum as
@@ -604,7 +602,7 @@ def search_step(scenario: Scenario, state: State, spec: Specification, horizon: 
     the same step. ``incumbent``: a plan of the horizon known already (the step's no-throw witness),
     the optimisation's first incumbent and cutoff: only cheaper plans are searched for."""
     t0 = time.perf_counter()
-    with _searching(scenario, state, spec, horizon, options, below) as search:
+    with _searching(problem, horizon, options, below) as search:
         found = search.feasible()
         if found.status is Status.INFEASIBLE:
             res = step_result(search.programs, None, np.inf, time.perf_counter() - t0)

@@ -40,7 +40,7 @@ from dualarm_mpc.model.mld import (
 from dualarm_mpc.model.plan import Trajectory
 from dualarm_mpc.model.route import Order, orders, route_steps
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import Specification
+from dualarm_mpc.model.spec import Specification, StepProblem
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
 
@@ -67,17 +67,32 @@ class StepPrograms:
     solved by ``options.backend`` under the search's clock. ``pool``: the workers that solve
     independent programs at once (HiGHS releases the GIL)."""
 
-    def __init__(self, scenario: Scenario, state: State, spec: Specification, horizon: int,
-                 options: SolveOptions, pool: ThreadPoolExecutor | None = None) -> None:
-        self.scenario, self.state, self.spec, self.horizon = scenario, state, spec, horizon
+    def __init__(self, problem: StepProblem, horizon: int, options: SolveOptions,
+                 pool: ThreadPoolExecutor | None = None) -> None:
+        self.problem, self.horizon = problem, horizon
         self.options, self.pool = options, pool
         self.deadline = time.perf_counter() + options.time_limit_s
-        self.program = HorizonProgram(scenario, state, list(spec.objects), horizon)
+        spec = problem.spec
+        self.program = HorizonProgram(problem.scenario, problem.state, list(spec.objects),
+                                      horizon)
         self.model = self.program.model
         self.local = {j: n for n, j in enumerate(spec.objects)}
-        local_grasp = state.grasp[:, list(spec.objects)]
+        local_grasp = problem.state.grasp[:, list(spec.objects)]
         self.held = [j for n, j in enumerate(spec.objects) if local_grasp[:, n].any()]
         self.no_throw = frozenset(self.local[j] for j in spec.released_only_in_goal())
+
+    @property
+    def scenario(self) -> Scenario:
+        return self.problem.scenario
+
+    @property
+    def state(self) -> State:
+        """The step's start, over all objects."""
+        return self.problem.state
+
+    @property
+    def spec(self) -> Specification:
+        return self.problem.spec
 
     def stopped(self) -> bool:
         """Out of time or work (``options.work``: read here only, where no worker runs, so
@@ -180,7 +195,7 @@ class StepPrograms:
         return replay(self.model, self.program.local_state, force, grasp)
 
     def satisfies(self, traj: Trajectory, spec: Specification) -> bool:
-        return satisfies(self.scenario, self.state, spec, self.model, traj)
+        return satisfies(self.problem.with_spec(spec), self.model, traj)
 
     def node_spec(self, node: Node) -> Specification:
         """φ_task replaced by "every j ∈ D delivered" (docs/search.md, "Skeleton nodes")."""
@@ -202,11 +217,12 @@ class StepPrograms:
                              slice_s=slice_s)
 
 
-def satisfies(scenario: Scenario, state: State, spec: Specification, model: Model,
-              traj: Trajectory) -> bool:
-    """Whether ``traj`` (over ``spec``'s objects, from ``state``) keeps the model's
-    constraints (the objects' spacing, (C1)–(C3), included), ends at rest and satisfies ``spec``
-    (evaluated on its trace by ``evaluate.py``, which shares no code with the encoder)."""
+def satisfies(problem: StepProblem, model: Model, traj: Trajectory) -> bool:
+    """Whether ``traj`` (over the objects of ``problem.spec``, from ``problem.state``) keeps the
+    model's constraints (the objects' spacing, (C1)–(C3), included), ends at rest and satisfies
+    ``problem.spec`` (evaluated on its trace by ``evaluate.py``, which shares no code with the
+    encoder)."""
+    scenario, state, spec = problem.scenario, problem.state, problem.spec
     if violations(model, traj) or np.abs(traj.object_vel[-1]).max(initial=0) > 1e-9:
         return False
     if crowding(model, traj, *standing(state, list(spec.objects), model.dt)):
