@@ -26,9 +26,17 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
 * **object contacts** — the pairs of objects that touched while one of them moved (the summary's
   ``object_contacts``, from the plant's contact results every 20 ms): a box shoved by another.
 
+* **on the clock** (issue 49) — ``--scenes table1_vc table1_vd`` runs §V-C (rule 2 only: rule 1
+  cannot throw to its unreachable goals) beside §V-D; ``--busy N`` keeps N other processes busy
+  (a loop each, ended with the bench) to measure a loaded machine; each run records its
+  simulated time, the seconds the robot stood at rest waiting for a search (``waiting_s``), the
+  replans' wall times and the latency (``solver.replan_latency_s``, through ``--set``).
+
 Run it (from the repository root)::
 
     .venv/bin/python bench/closed_loop.py                       # rules 1 and 2, seeds 0-2
+    .venv/bin/python bench/closed_loop.py --scenes table1_vc table1_vd --busy 2 \
+        --set 'solver.realtime: true' --json bench/results/closed_loop-clock-realtime-busy.json
     .venv/bin/python bench/closed_loop.py --rules 2 --seeds 0,4 --time-limit 5
     .venv/bin/python bench/closed_loop.py --set 'goal_slots: true' --json bench/results/slots.json
 
@@ -44,8 +52,10 @@ Runs go one after another in this process, so the timings are those of one other
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import subprocess
 import sys
 import time
 import traceback
@@ -75,6 +85,7 @@ from dualarm_mpc.model.scenario import (
 from dualarm_mpc.sim.closed_loop import simulate
 
 SCENARIO = "table1_vd"
+SCENES = (SCENARIO, "table1_vc")
 M_O, N_O = 2, 6
 SOLUTION = ("optimal", "feasible", "kept")  # a plan in force after the replan
 NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object done, or none can be
@@ -103,6 +114,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--set", action="append", type=parse_set, default=[], metavar="YAML",
                    help="extra scenario overrides, applied last, e.g. --set 'goal_slots: true' "
                         "(repeatable)")
+    p.add_argument("--scenes", nargs="+", choices=SCENES, default=[SCENARIO],
+                   help="table1_vd (seeds, rules) and/or table1_vc (rule 2, one run)")
+    p.add_argument("--busy", type=int, default=0, metavar="N",
+                   help="other processes kept busy during the runs (a loaded machine)")
     p.add_argument("--json", type=Path, default=Path("bench/results/closed_loop.json"))
     p.add_argument("--quiet", action="store_true", help="no per-replan lines on stderr")
     return p.parse_args(argv)
@@ -111,9 +126,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 # --- one run -----------------------------------------------------------------------------------
 
 
-def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict]) -> dict:
+def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict],
+              scene: str = SCENARIO) -> dict:
     """The robot's settings (as ``dualarm-mpc simulate``), then this run's, then ``--set``."""
-    out = {**on_robot_overrides(load_scenario(SCENARIO)), "rule": rule, "seed": seed, "m_o": M_O,
+    out = {**on_robot_overrides(load_scenario(scene)), "rule": rule, "seed": seed, "m_o": M_O,
            "n_o": N_O}
     if time_limit is not None:
         out["solver"] = {"time_limit_s": time_limit}
@@ -139,11 +155,11 @@ def percentiles(values: list[float]) -> dict:
             "max": float(a.max()), "mean": float(a.mean())}
 
 
-def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
+def run_one(rule: int, seed: int, args: argparse.Namespace, scene: str = SCENARIO) -> dict:
     """Simulate one (rule, seed); always returns a record, never raises."""
-    record = {"rule": rule, "seed": seed, "m_o": M_O, "n_o": N_O, "status": "error",
-              "message": ""}
-    tag = f"rule {rule} seed {seed}"
+    record = {"scene": scene, "rule": rule, "seed": seed, "m_o": M_O, "n_o": N_O,
+              "status": "error", "message": ""}
+    tag = f"{scene} rule {rule} seed {seed}"
 
     def progress(r) -> None:
         if not args.quiet:
@@ -154,7 +170,9 @@ def run_one(rule: int, seed: int, args: argparse.Namespace) -> dict:
 
     t0 = time.perf_counter()
     try:
-        scenario = load_scenario(SCENARIO, overrides(rule, seed, args.time_limit, args.set))
+        scenario = load_scenario(scene, overrides(rule, seed, args.time_limit, args.set, scene))
+        record["latency_s"] = scenario.replan_latency
+        record["busy"] = getattr(args, "busy", 0)
         record["time_limit_s"] = scenario.solver.time_limit_s
         record["object_clearance"] = scenario.task.object_clearance
         record["n_objects"] = scenario.n_objects
@@ -204,6 +222,7 @@ def summary_record(summary) -> dict:
         replan_wall_s=percentiles([r["wall_s"] for r in solves]),
         statuses=dict(Counter(r["status"] for r in summary.replans)),
         replans_over_budget=len(summary.replans_over_budget),
+        waiting_s=summary.waiting_s,
         final_object_pos=summary.final_object_pos,
         final_object_speed=summary.final_object_speed,
         delivered_time_s=summary.delivered_time_s,
@@ -214,7 +233,7 @@ def summary_record(summary) -> dict:
 
 
 def run_line(k: int, n: int, r: dict) -> str:
-    head = f"[{k}/{n}] rule {r['rule']} seed {r['seed']}"
+    head = f"[{k}/{n}] {r.get('scene', SCENARIO)} rule {r['rule']} seed {r['seed']}"
     if r["status"] != "ok":
         return f"{head}: ERROR after {r['wall_time_s']:.0f} s: " \
                f"{r['message'].strip().splitlines()[-1]}"
@@ -343,18 +362,36 @@ def write_json(path: Path, args: argparse.Namespace, records: list[dict], info: 
     write_json_atomic(path, data)
 
 
+@contextlib.contextmanager
+def busy(n: int):
+    """``n`` other processes, each a loop on a core of its own, until the block ends (each also
+    ends by itself after a day, should this process be killed)."""
+    loop = "import time\nend = time.time() + 86400\nwhile time.time() < end: pass"
+    procs = [subprocess.Popen([sys.executable, "-c", loop]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for proc in procs:
+            proc.kill()
+            proc.wait()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    tasks = [(rule, seed) for rule in args.rules for seed in args.seeds]
+    tasks = [(scene, rule, seed) for scene in args.scenes
+             for rule in (args.rules if scene == SCENARIO else [2])
+             for seed in (args.seeds if scene == SCENARIO else [0])]
     info = machine()
     records: list[dict] = []
     t0 = time.perf_counter()
-    for k, (rule, seed) in enumerate(tasks, 1):
-        print(f"[{k}/{len(tasks)}] rule {rule} seed {seed}: running", file=sys.stderr, flush=True)
-        record = run_one(rule, seed, args)
-        records.append(record)
-        print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
-        write_json(args.json, args, records, info, complete=k == len(tasks))
+    with busy(args.busy):
+        for k, (scene, rule, seed) in enumerate(tasks, 1):
+            print(f"[{k}/{len(tasks)}] {scene} rule {rule} seed {seed}: running",
+                  file=sys.stderr, flush=True)
+            record = run_one(rule, seed, args, scene)
+            records.append(record)
+            print(run_line(k, len(tasks), record), file=sys.stderr, flush=True)
+            write_json(args.json, args, records, info, complete=k == len(tasks))
     text = report(records, args) + footer(info, t0)
     write_report(args.json, text)
     return 1 if any(r["status"] != "ok" for r in records) else 0

@@ -14,7 +14,9 @@ by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, `
 ``demo``, ``install``); ``paper`` is Table II of the paper beside ours, pooled over every
 ``table2*.json``; ``clearance`` is what ``object_clearance`` costs and saves, from
 ``table2-m2-apart.json`` and the two closed-loop records (``closed_loop.json``: objects apart,
-``closed_loop-points.json``). Every table ends with the records it comes from: their date and the
+``closed_loop-points.json``); ``clock`` is the closed loop on the clock, one row per
+``closed_loop-clock-*.json`` (lockstep or real time, the latency, other processes kept busy).
+Every table ends with the records it comes from: their date and the
 machine's speed.
 
 Run it (from the repository root)::
@@ -35,6 +37,7 @@ import re
 import sys
 from pathlib import Path
 
+import numpy as np
 from benchlib import fmt, table
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -201,6 +204,52 @@ def render_clearance(results: Path) -> str:
     return table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n"
 
 
+CLOCK_RECORDS = "closed_loop-clock-*.json"
+
+
+def render_clock(results: Path) -> str:
+    """The closed loop on the clock (issue 49): per record, one configuration (lockstep or real
+    time, the replan latency, how many other processes were kept busy) over the same runs (§V-C
+    rule 2, §V-D seeds and rules): objects delivered, simulated time against lockstep's without
+    latency, the seconds the robot stood waiting for a search, and the replans' wall times."""
+    names = sorted(p.name for p in results.glob(CLOCK_RECORDS))
+    if not names:
+        raise RecordError(f"{results}/{CLOCK_RECORDS}: no record (the clock marker needs one)")
+    data = {name: load(results, name) for name in names}
+
+    def key(r: dict) -> tuple:
+        return r["scene"], r["rule"], r["seed"]
+
+    base = {}  # the lockstep runs without latency: what each run's time is held against
+    for d in data.values():
+        for r in d["runs"]:
+            if r["status"] == "ok" and r["mode"] == "lockstep" and r["latency_s"] == 0:
+                base[key(r)] = r["sim_time_s"]
+    rows = []
+    for d in data.values():
+        ok = [r for r in d["runs"] if r["status"] == "ok"]
+        if not ok:
+            continue
+        latency = {r["latency_s"] for r in ok}
+        walls = [x["wall_s"] for r in ok for x in r["replan_log"]
+                 if x["status"] not in ("done", "stuck")]
+        ratios = [r["sim_time_s"] / base[key(r)] for r in ok if key(r) in base]
+        busy = d["options"].get("busy", 0)
+        rows.append([
+            f"{ok[0]['mode']}, latency {', '.join(f'{v:g}' for v in sorted(latency))} s, "
+            + (f"{busy} busy processes" if busy else "machine otherwise idle"),
+            f"{len(ok)}", f"{sum(r['delivered'] for r in ok)}/{sum(r['n_objects'] for r in ok)}",
+            f"{sum(r['sim_time_s'] for r in ok) / len(ok):.1f}",
+            f"{max(ratios):.2f}×" if ratios else "—",
+            f"{sum(r.get('waiting_s', 0) for r in ok):g}",
+            *(f"{v:.3f}" for v in np.percentile(walls, [50, 95])), f"{max(walls):.2f}"])
+    header = ["configuration", "runs", "at rest in their goals", "mean simulated time (s)",
+              "most against lockstep", "s waiting for a search", "replan wall p50 (s)",
+              "p95 (s)", "max (s)"]
+    sources = [provenance(name, d, commit=False) for name, d in data.items()]
+    return table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n"
+
+
 def seed_text(seeds: list[int]) -> str:
     """``0–9`` for a range, ``0, 3, 7`` otherwise."""
     if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
@@ -222,6 +271,7 @@ def regenerate(text: str, results: Path, relative: str) -> str:
         name = match.group(2)
         body = (render_paper(results) if name == "paper"
                 else render_clearance(results) if name == "clearance"
+                else render_clock(results) if name == "clock"
                 else render_file(results, name, commit=relative != ""))
         return match.group(1) + body.replace("](../", f"]({relative}") + match.group(4)
     return BLOCK.sub(block, text)

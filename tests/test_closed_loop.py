@@ -527,3 +527,35 @@ def test_cli_simulate_refuses_an_event_after_the_end(tmp_path, capsys) -> None:
     assert code == 2
     assert "events[0].time" in err and "duration 10 s" in err, err
     assert len(err.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_a_live_run_this_machine_cannot_keep_is_paced_at_what_it_keeps(monkeypatch, caplog) -> None:
+    """A live run that falls behind real time is paced at the rate it keeps (one warning line
+    says so) and a replan's wall-time budget stretches by as much."""
+    from dualarm_mpc.planning.replan_worker import ReplanWorker
+    from dualarm_mpc.sim import closed_loop
+
+    worker = ReplanWorker(scene("pace", two_objects(), solver={"realtime": True}))
+    budget = worker.budget_s
+
+    class Fake:  # the simulator's and the planner's side of the pace, as the run calls them
+        rate = 1.0
+
+        def set_target_realtime_rate(self, rate: float) -> None:
+            self.rate = rate
+
+        planner = None
+
+    fake = Fake()
+    fake.planner = type("Planner", (), {"pace": staticmethod(worker.pace)})()
+    wall = iter([0.0, 10.0, 20.0, 30.0])  # 5 s of simulated time every 10 s of wall time
+    monkeypatch.setattr(closed_loop.time, "perf_counter", lambda: next(wall))
+    pace = closed_loop._Pace(fake, fake)
+    with caplog.at_level("WARNING"):
+        for t in (0.0, 5.0, 10.0):
+            pace.check(t)
+    worker.close()
+    assert fake.rate == 0.5 and worker.budget_s == pytest.approx(2 * budget)
+    assert [r.getMessage() for r in caplog.records] == [
+        "this machine keeps 0.50× real time: the live run goes on at 0.5× (a replan's "
+        "wall-time budget stretches with it)"]

@@ -170,6 +170,12 @@ class Replanner:
         """Real time: the search carried over to the next periods, if any."""
         return None if self._worker is None else self._worker.search
 
+    def pace(self, rate: float) -> None:
+        """Real time at ``rate`` × real time: the wall-time budget of a replan stretches with
+        it (the same share of a control period)."""
+        if self._worker is not None:
+            self._worker.pace(rate)
+
     def close(self) -> None:
         """Stop the searches running, if any, and the worker (the run is over)."""
         self._drop_ahead()

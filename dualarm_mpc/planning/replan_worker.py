@@ -39,10 +39,16 @@ class ReplanWorker:
     def __init__(self, scenario: Scenario) -> None:
         budget = scenario.solver.replan_budget_s
         self.budget_s = BUDGET_SHARE * scenario.robot.dt if budget is None else budget
+        self._full_speed_budget_s = self.budget_s
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="mpc-search")
         self._ahead = ThreadPoolExecutor(1, thread_name_prefix="mpc-ahead")
         #: Real time: the search carried over to the next periods, if any.
         self.search: Search | None = None
+
+    def pace(self, rate: float) -> None:
+        """The simulation runs at ``rate`` × real time: the budget, the same share of a
+        control period, is ``1 / rate`` times the wall time."""
+        self.budget_s = self._full_speed_budget_s / rate
 
     def start(self, solve: Callable[[Any], Any], job: Any) -> Future:
         """``solve(job)`` on the worker."""

@@ -12,6 +12,7 @@ machine; the summary JSON carries them only in real time (``solver.realtime``).
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -30,6 +31,8 @@ from dualarm_mpc.planning.mpc import Replan, Solve
 from dualarm_mpc.sim import recording
 from dualarm_mpc.sim.diagram import DualArm, MakeDiagram
 from dualarm_mpc.sim.disturbances import Disturbance, World, knock, move_goal
+
+log = logging.getLogger(__name__)
 
 SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
 
@@ -142,6 +145,35 @@ class _Events:
                 raise ValueError(f"disturb: next_time() stayed at {after} after a call")
 
 
+class _Pace:
+    """A live run's pace: the real-time rate this machine keeps, measured over ``WINDOW_S`` of
+    simulated time. Where it falls behind real time the run is paced at what it keeps (one line
+    says so) and a replan's wall-time budget stretches with it, so that the robot moves at a
+    steady, slower pace instead of replans running over a budget meant for full speed."""
+
+    WINDOW_S = 5.0  # simulated seconds a rate is measured over
+    KEEP = 0.9  # a rate below this share of the target is falling behind
+
+    def __init__(self, simulator: Simulator, dual: DualArm) -> None:
+        self.simulator, self.dual = simulator, dual
+        self.rate = 1.0
+        self.since: tuple[float, float] | None = None  # (simulated, wall) time of the window
+
+    def check(self, t: float) -> None:
+        now = time.perf_counter()
+        if self.since is None or t - self.since[0] < self.WINDOW_S:
+            self.since = self.since or (t, now)
+            return
+        kept = (t - self.since[0]) / max(now - self.since[1], 1e-9)
+        self.since = (t, now)
+        if kept < self.KEEP * self.rate:
+            self.rate = max(0.1, math.floor(10 * kept) / 10)
+            self.simulator.set_target_realtime_rate(self.rate)
+            self.dual.planner.pace(self.rate)
+            log.warning("this machine keeps %.2f× real time: the live run goes on at %g× "
+                        "(a replan's wall-time budget stretches with it)", kept, self.rate)
+
+
 class _Monitor:
     """The run's ``Simulator`` monitor, called after every simulator step (the plant steps every
     2 ms; nothing changes in between). It only looks: records every replan from the planner's
@@ -152,8 +184,10 @@ class _Monitor:
     time, the last replan is Δt old, and an object that crept out of its goal since ended the
     run outside it (measured: 0.4 mm past a goal's edge at 2.5 mm/s)."""
 
-    def __init__(self, dual, events: _Events, progress, observe) -> None:
+    def __init__(self, dual, events: _Events, progress, observe,
+                 pace: _Pace | None = None) -> None:
         self.dual, self.events, self.progress, self.observe = dual, events, progress, observe
+        self.pace = pace
         self.replans: list[Replan] = []
         self.finished_at: float | None = None
 
@@ -175,6 +209,8 @@ class _Monitor:
         if not replanned:
             return EventStatus.Succeeded()
         last = self.replans[-1]
+        if self.pace is not None:
+            self.pace.check(last.t)
         pending = self.events.next_time() is not None
         if last.status in ("done", "stuck") and not pending and _all_at_rest(self.dual, context):
             self.finished_at = last.t if self.finished_at is None else self.finished_at
@@ -209,7 +245,7 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     if live:
         simulator.set_target_realtime_rate(1.0)  # at the speed a person watches
     events = _Events(scenario, dual, meshcat, disturb)
-    monitor = _Monitor(dual, events, progress, observe)
+    monitor = _Monitor(dual, events, progress, observe, _Pace(simulator, dual) if live else None)
     simulator.set_monitor(monitor)
     wall0 = time.perf_counter()
     interrupted = False

@@ -110,6 +110,11 @@ class MpcPlanner(LeafSystem):
         """Stop a search still running in the background (real time; the simulation is over)."""
         self._closer()
 
+    def pace(self, rate: float) -> None:
+        """Real time: the simulation runs at ``rate`` × real time (a live run this machine cannot
+        keep at full speed); a replan's wall-time budget stretches with it."""
+        self._replanner.pace(rate)
+
     def __enter__(self) -> MpcPlanner:
         return self
 
