@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -22,7 +23,14 @@ from dualarm_mpc.model.scenario import (
     load_scenario,
 )
 from dualarm_mpc.model.spec import StepProblem, specification
-from dualarm_mpc.planning.mpc import PLANNED_AHEAD, SEARCHING, STILL_SPEED, MpcState, Replanner
+from dualarm_mpc.planning.mpc import (
+    ONE_FIRST,
+    PLANNED_AHEAD,
+    SEARCHING,
+    STILL_SPEED,
+    MpcState,
+    Replanner,
+)
 from dualarm_mpc.planning.sequential import solve_horizon
 
 GOALS = {"red": [0.225, 0.575, 0.65, 0.95], "green": [-0.175, 0.175, 0.85, 1.15]}
@@ -425,3 +433,37 @@ def test_a_replan_with_latency_plans_from_where_the_robot_will_be() -> None:
     assert {r.status for r in late if not r.adopted} <= {"kept", "done"}
     assert late[-1].n_delivered == 3
     assert late[-1].t <= now[-1].t + 3 * dt
+
+
+def test_a_robot_that_would_wait_for_a_long_search_moves_one_object_first() -> None:
+    """Real time, anytime: the search for a step of two objects is held (no clock involved),
+    the robot rests waiting for it; beside it the step with one object is searched, and the
+    next replan moves the robot with that plan (the long search dropped), which delivers one
+    of the step's objects; the step goes on with the other."""
+    stopped = threading.Event()
+
+    def held_for_two(problem, T, options, start=None):
+        if problem.spec.m_o > 1:
+            while not options.interrupt.is_set():
+                time.sleep(0.005)
+            stopped.set()
+            return dataclasses.replace(solve_horizon(problem, T, options, start=start),
+                                       status=Status.TIME_LIMIT, trajectory=None)
+        return solve_horizon(problem, T, options, start=start)
+
+    sc = two_objects(rule=1, solver={"realtime": True, "replan_budget_s": 0.001})
+    sc = apply_overrides(sc, {"delivery": "rest", "goal_margin": 0.03})
+    core = Replanner(sc, solve=held_for_two)
+    s1, r1 = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
+    assert r1.status == "searching" and r1.objects == (0, 1)
+    for _ in range(500):  # the one-object search ends on its own
+        if core._quick is None or core._quick[1].done():
+            break
+        time.sleep(0.01)
+    s2, r2 = core.step(1.0, s1, at_rest(sc), sc.task.goals)
+    core.close()
+    assert r2.adopted and r2.note == ONE_FIRST and r2.status in ("optimal", "feasible")
+    assert stopped.wait(10) and core.search is None
+    end = s2.plan.trajectory.object_pos[-1]
+    assert sum(in_goal(end[j], sc.task.goals[o.goal]) for j, o in enumerate(sc.task.objects)) >= 1
+    assert s2.step_objects == (0, 1) and s2.plan.t0 == 1.0

@@ -28,6 +28,10 @@ from the measured state (Algorithm 1, one step at a time):
   adopts it where the state it starts from matches the prediction within the tolerances a replan
   snaps to the plan in force by, and searches afresh otherwise. In real time it runs on a
   thread of its own, in lockstep in the replan that made the plan;
+* anytime (real time): where the robot would wait at rest for a search past its budget, the same
+  step with m_o = 1 is searched beside it, and its plan, the first to end, moves the robot at
+  once (the search for the whole step is then dropped: its start is gone); the step's other
+  objects are planned from where that plan ends;
 * a replan may plan from later than now: with a latency L (the time the computer needs), the
   replan at t plans from the measured state carried L on by the plan in force's inputs through
   the model, and its plan starts at t + L (:meth:`Replanner.step`);
@@ -94,6 +98,7 @@ NO_TIME_LIMIT_S = 1e7
 SEARCHING = "over budget: the robot waits at rest while the search goes on"
 ON_PROVEN_PLAN = "on the proven plan: its rest is the replan's optimum"
 PLANNED_AHEAD = "planned ahead while the last step ran"
+ONE_FIRST = "one object first: the search for the whole step outlasted its budget"
 _ON_GRID = 1e-6  # of a step: a replan at the plan's step k exactly
 
 # solve(problem, T, options, start=...) -> StepResult: one horizon's solve (problem: StepProblem).
@@ -159,6 +164,8 @@ class Replanner:
         # _on_proven_plan); a user rule may look anywhere, so with one every replan searches.
         self._keep_proven = all(name in RULE_TEXT for name, _ in self._rules)
         self._ahead: _Ahead | None = None  # the next sequential step, planned ahead
+        # Real time: beside a search the robot waits for, the same step with m_o = 1
+        self._quick: tuple[_Job, Future] | None = None
 
     def initial_state(self) -> MpcState:
         sc = self._scenario
@@ -179,6 +186,7 @@ class Replanner:
     def close(self) -> None:
         """Stop the searches running, if any, and the worker (the run is over)."""
         self._drop_ahead()
+        self._drop_quick()
         if self._worker is not None:
             self._worker.close()
 
@@ -240,10 +248,17 @@ class Replanner:
             job, future = self.search.job, self.search.future
             if job.problem.scenario.task.goals != goals or not self._still(job, measured):
                 worker.abandon()  # the world moved on: plan afresh below
+                self._drop_quick()
             elif not worker.within_budget(future):
+                quick = self._quick_plan()
+                if quick is not None:  # anytime: move now, the step's rest planned on the way
+                    worker.abandon()
+                    return self._adopt(s, dataclasses.replace(quick[0], changes=job.changes),
+                                       quick[1], t, wall0, ONE_FIRST)
                 return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
             else:
                 worker.take()
+                self._drop_quick()
                 return self._adopt(s, job, future.result(), t, wall0)
         prepared = self._prepare(t, s, measured, goals, wall0)
         if not isinstance(prepared, _Job):
@@ -268,6 +283,7 @@ class Replanner:
             return self._adopt(s, job, future.result(), t, wall0)
         if job.idle:
             worker.carry(job, future, job.options.interrupt)
+            self._start_quick(job)
             return _record(s, t, wall0, "searching", note=SEARCHING, **job.changes)
         job.options.interrupt.set()
         return _record(s, t, wall0, "over_budget", note="kept the previous plan", **job.changes)
@@ -363,6 +379,37 @@ class Replanner:
                               **job.changes)
         self._plan_ahead(new, start, sc.task.goals)
         return new, record
+
+    # -- anytime: one object first while the robot would wait -------------------------------
+
+    def _start_quick(self, job: _Job) -> None:
+        """Beside a search the robot waits for at rest, the same step with m_o = 1 (the one
+        delivery found first, a far smaller search), on the plan-ahead thread: a plan that moves
+        the robot now, the rest of the step planned on the way."""
+        self._drop_quick()
+        spec = job.problem.spec
+        if spec.m_o <= 1:
+            return
+        self._drop_ahead()
+        one = dataclasses.replace(
+            job, problem=job.problem.with_spec(dataclasses.replace(spec, m_o=1)),
+            options=dataclasses.replace(job.options, interrupt=Interrupt()))
+        self._quick = (one, self._worker.start_ahead(self._solve, one))
+
+    def _drop_quick(self) -> None:
+        if self._quick is not None:
+            self._quick[0].options.interrupt.set()
+            self._quick = None
+
+    def _quick_plan(self) -> tuple[_Job, StepResult] | None:
+        """The one-delivery plan of :meth:`!_start_quick`, if it has ended with a plan (and
+        the robot still rests where it started: the carried search checked that)."""
+        if self._quick is None or not self._quick[1].done():
+            return None
+        one, future = self._quick
+        self._quick = None
+        res = future.result() if future.exception() is None else None
+        return (one, res) if res is not None and res.status.has_solution else None
 
     # -- the next step, planned ahead ---------------------------------------------------------
 
