@@ -294,3 +294,113 @@ def test_an_m_o_beyond_the_objects_left_is_told(tmp_path, capsys) -> None:
     stdout = capsys.readouterr().out
     assert "note: m_o = 3, but 2 object(s) are left to deliver: a step delivers 2" in stdout
     assert "(m_o = 2: the objects left)" in stdout
+
+
+# --- issue 51: output for people ------------------------------------------------------------------
+
+
+def test_plan_groups_the_horizons_tried_under_their_step(tmp_path, capsys) -> None:
+    """Before: a step's horizons without a plan printed above its numbered line, unlabelled
+    (the demo's first line was an orphan ``4 90 infeasible``)."""
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(path), "--set", "solver.handover: never", "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    segments = json.loads(out.read_text())["segments"]
+    start = lines.index("the horizons T each sequential step tried, the step's plan last:")
+    assert lines[start + 1].split() == ["T", "binaries", "status", "solve", "[s]", "cost",
+                                        "delivered"]
+    table = lines[start + 2:lines.index(next(x for x in lines if x.startswith("total:")))]
+    headers = [k for k, line in enumerate(table) if line.startswith("step ")]
+    assert [table[k].split(":")[0] for k in headers] == [f"step {s + 1}"
+                                                         for s in range(len(segments))]
+    assert headers[0] == 0  # no row above the first step's header
+    for s, (k, end) in enumerate(zip(headers, [*headers[1:], len(table)], strict=True)):
+        rows = [line.split() for line in table[k + 1:end]]
+        # the step's plan last: its horizon and the objects it delivers
+        assert rows[-1][0] == str(segments[s]["horizon"]) and rows[-1][2] == "optimal"
+        assert rows[-1][5] == ",".join(str(j + 1) for j in segments[s]["delivered"])
+        assert all(r[2] not in ("optimal", "feasible") for r in rows[:-1])
+
+
+def test_check_prints_objects_that_conflict_alike_as_one_line(tmp_path, monkeypatch,
+                                                                capsys) -> None:
+    from dualarm_mpc.planning import consistency
+
+    why = "the goal lies beyond the hands' reach (…) and no-throw (18) forbids …"
+    alike = [consistency.Conflict((f"object{j}",), ("no-throw (18)",), f"object{j} → red: {why}",
+                                  why) for j in (1, 2, 3, 5)]
+    other = consistency.Conflict(("object4",), (), "object4 → red: no plan brings it", "no plan")
+    monkeypatch.setattr(consistency, "check", lambda *a, **k: consistency.Report(
+        (*alike, other), (), 10))
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    assert main(["check", str(path)]) == 3
+    assert capsys.readouterr().out.splitlines() == [f"conflict: objects 1–3, 5: {why}",
+                                                    "conflict: object4 → red: no plan brings it"]
+
+
+def _replan(t: float, status: str = "kept", delivered: int = 0, adopted: bool = False,
+            objects=(0,), note: str = "on the proven plan"):
+    from dualarm_mpc.planning.mpc import Replan
+
+    return Replan(t, 0.01 * (t + 1), status, None, None, objects, delivered, note, t, adopted)
+
+
+def _table(monkeypatch, capsys, tty: bool):
+    from dualarm_mpc.cli.commands import _ReplanTable
+
+    monkeypatch.setattr("sys.stdout.isatty", lambda: tty)
+    table = _ReplanTable(load_scenario("table1_vc"), 40.0)
+    for r in [_replan(0.0, "optimal", adopted=True), _replan(1.0), _replan(2.0), _replan(3.0),
+              _replan(4.0, delivered=2), _replan(5.0, "optimal", 2, True, (1, 2), ""),
+              _replan(6.0, "done", 4, True, (), ""), _replan(7.0, "done", 4, True, (), "")]:
+        table(r)
+    table.finish()
+    return capsys.readouterr().out
+
+
+def test_simulate_prints_a_run_of_replans_that_change_nothing_as_one_line(monkeypatch,
+                                                                          capsys) -> None:
+    """Before: 45 of the demo's 61 lines were identical ``kept`` lines."""
+    out = _table(monkeypatch, capsys, tty=False)
+    assert "\r" not in out  # plain lines: no progress line off a terminal
+    assert [line.split()[:4] for line in out.splitlines()[1:]] == [
+        ["0.0", "0/10", "optimal", "-"],
+        ["1.0–3.0", "0/10", "kept", "×3"],  # the longest solve of the three: 3.0's
+        ["4.0", "2/10", "kept", "-"],  # objects delivered changed: a line of its own
+        ["5.0", "2/10", "optimal", "-"],
+        ["6.0–7.0", "4/10", "done", "×2"],  # the same hold at rest
+    ]
+    assert "0.040  1  (on the proven plan)" in out.splitlines()[2]
+
+
+def test_simulate_shows_its_progress_in_one_line_on_a_terminal(monkeypatch, capsys) -> None:
+    out = _table(monkeypatch, capsys, tty=True)
+    shown = [part for part in out.split("\r\x1b[K") if part.startswith("step ")]
+    assert len(shown) == 8  # one per replan, each over the last
+    assert shown[0] == "step 1, delivered 0/10, t = 0.0 s"
+    assert shown[4].startswith("step 1, delivered 2/10, t = 4.0 s, real-time factor ")
+    assert " s left" in shown[4] and "step 2, delivered 2/10, t = 5.0 s" in shown[5]
+    # a table line clears the progress line first, and the run ends on a line of the table
+    assert "\r\x1b[K    1.0–3.0      0/10   kept ×3" in out
+    assert out.split("\r\x1b[K")[-1].startswith("    6.0–7.0") and out.endswith("\n")
+
+
+def test_drakes_irrelevant_log_lines_are_dropped_at_the_source(caplog) -> None:
+    """Before: every ``simulate`` printed Drake's deformable half-space warning, and with
+    ``--html`` the URL of a Meshcat server nobody was to open."""
+    import logging
+
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    import dualarm_mpc.sim.station  # noqa: F401  (installs the filter)
+
+    drake = logging.getLogger("drake")
+    with caplog.at_level(logging.INFO, logger="drake"):
+        Meshcat(MeshcatParams(port=0))
+        drake.warning("Rigid (non-deformable) half spaces are not currently supported for "
+                      "deformable contact; registration is allowed")
+        drake.warning("something else")
+    assert [r.getMessage() for r in caplog.records] == ["something else"]

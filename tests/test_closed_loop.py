@@ -493,6 +493,11 @@ def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:
         assert key in data, key
     assert data["mode"] == "lockstep" and data["replan_latency_s"] == 0.0
     assert "wall_clock" not in data and "real-time factor" in printed.out  # on stdout instead
+    # for people (issue 51): replans that change nothing on one line with their count, none of
+    # Drake's irrelevant log lines, and no Meshcat URL without --meshcat
+    lines = printed.out.splitlines()
+    assert len(lines) == len(set(lines)) and any(" ×" in line for line in lines), printed.out
+    assert "half spaces" not in printed.err and "Meshcat" not in printed.out + printed.err
     assert data["min_arm_clearance_m"] >= MIN_ARM_CLEARANCE
     assert data["object_contacts"] == []  # one object: nothing to touch
     assert data["goals"] == {"red": [0.225, 0.575, 0.65, 0.95],

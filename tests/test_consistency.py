@@ -8,7 +8,7 @@ import pytest
 from scenes import TWO_OBJECTS
 
 from dualarm_mpc.model.scenario import load_scenario
-from dualarm_mpc.planning.consistency import check
+from dualarm_mpc.planning.consistency import Conflict, check, grouped
 
 
 @pytest.fixture
@@ -30,9 +30,26 @@ def test_table1_vc_rule_1_names_no_throw_for_every_object(vc_rule1) -> None:
     assert len(vc_rule1.conflicts) == 10
     for c in vc_rule1.conflicts:
         assert c.rules == ("no-throw (18)",)
-        assert "beyond the hands' reach (y ≤ 0.95)" in c.reason
+        # the hand range plan.png draws, and where a held object's centre can go
+        assert "beyond the hands' reach (hands y ≤ 0.9, a held object's centre y ≤ 0.95)" \
+            in c.reason
         assert "forbids releasing it outside its goal" in c.reason
         assert c.reason.startswith(f"{c.objects[0]} → ")
+        assert c.reason.endswith(f": {c.why}")
+    # one finding, not ten near-identical lines (issue 51)
+    assert grouped(vc_rule1.conflicts) == [f"objects 1–10: {vc_rule1.conflicts[0].why}"]
+
+
+@pytest.mark.parametrize(("names", "said"), [
+    (["object1", "object2", "object3", "object5"], "objects 1–3, 5"),
+    (["object7", "object8"], "objects 7, 8"),
+    (["box 2", "box 4"], "box 2, box 4"),
+    (["a", "object2"], "a, object2"),
+])
+def test_conflicts_alike_are_one_line_naming_their_objects(names, said) -> None:
+    alike = [Conflict((n,), ("no-throw (18)",), f"{n} → red: why", "why") for n in names]
+    other = Conflict(("x",), (), "x → red: another reason", "another reason")
+    assert grouped([*alike, other]) == [f"{said}: why", "x → red: another reason"]
 
 
 def test_table1_vc_rule_2_is_consistent() -> None:

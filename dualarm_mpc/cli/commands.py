@@ -41,7 +41,7 @@ def _objects_left(scenario) -> int:
 def _check(scenario, joint: bool, file=None):
     """Run the consistency check (``consistency.py``) and print what it found. Nothing of it
     is kept if a signal stops it."""
-    from dualarm_mpc.planning.consistency import check
+    from dualarm_mpc.planning.consistency import check, grouped
 
     done = [0, 0]  # objects checked, of how many
 
@@ -52,7 +52,7 @@ def _check(scenario, joint: bool, file=None):
         lambda: check(scenario, joint=joint, progress=progress),
         tick=heartbeat(lambda: "checking the task against the rules"
                         + (f" ({done[0]} of {done[1]} objects checked)" if done[1] else "")))
-    for conflict in report.conflicts:
+    for conflict in grouped(report.conflicts):  # objects that conflict alike: one line
         print(f"conflict: {conflict}", file=file or sys.stdout)
     for what in report.undecided:
         print(f"undecided within the time limit: {what}", file=file or sys.stdout)
@@ -116,23 +116,34 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
         return CONFLICT
     left = _objects_left(scenario)
-    if left:
-        print(f"{'step':>4}  {'delivered':<22} {'T':>3} {'binaries':>8}  {'status':<10} "
-              f"{'solve [s]':>9}  {'cost':>7}")
+    if left:  # a header per step, its horizons tried under it, its plan last
+        print("the horizons T each sequential step tried, the step's plan last:")
+        print(f"{'T':>7} {'binaries':>8}  {'status':<10} {'solve [s]':>9}  {'cost':>7}  "
+              "delivered")
     count = [0]
     said = [time.perf_counter()] * 2  # the last line printed, the step's start
+    headed = [0]  # the last step whose header is printed
+
+    def numbers(objects) -> str:
+        return ",".join(task.objects[j].name.removeprefix("object") for j in objects)
+
+    def header(step: int, objects) -> None:
+        if headed[0] < step:
+            headed[0] = step
+            print(f"step {step}: objects {numbers(objects)}", flush=True)
 
     def heartbeat() -> None:  # a long search is never silent
         now = time.perf_counter()
         if now - said[0] >= process.HEARTBEAT_S:
-            print(f"{'':>4}  still searching step {count[0] + 1}: {now - said[1]:.0f} s so far",
+            print(f"{'':>4}still searching step {count[0] + 1}: {now - said[1]:.0f} s so far",
                   flush=True)
             said[0] = now
 
     def progress(seg) -> None:
         said[0] = said[1] = time.perf_counter()
         count[0] += 1
-        names = ",".join(task.objects[j].name.removeprefix("object") for j in seg.delivered)
+        header(count[0], seg.objects)
+        names = numbers(seg.delivered)
         fewer = len(seg.objects) < task.m_o  # the last objects: m_o shrinks to them
         notes = [f"m_o = {len(seg.objects)}: the objects left"] if fewer else []
         if seg.witness_cost is not None:
@@ -143,8 +154,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
             notes.append(f"T = {seg.shorter_plan[0]} has a plan at {seg.shorter_plan[1]:.3f}")
         if seg.horizons_undecided:
             notes.append("T = " + ", ".join(map(str, seg.horizons_undecided)) + " undecided")
-        print(f"{count[0]:>4}  {names or '-':<22} {seg.horizon:>3} {seg.binaries:>8}  "
-              f"{seg.status:<10} {seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}"
+        print(f"{'':>4}{seg.horizon:>3} {seg.binaries:>8}  {seg.status:<10} "
+              f"{seg.solve_time_s:>9.2f}  {seg.cost:>7.3f}  {names or '-'}"
               + "".join(f"  ({n})" for n in notes), flush=True)
 
     export = None
@@ -162,9 +173,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
             export.add(t.step, step.spec, res.horizon, res.status, res.cost, form)
         if not res.status.has_solution:
             said[0] = time.perf_counter()
+            header(t.step, t.problem.spec.objects)
             by = "  (CP-SAT)" if res.message.startswith("CP-SAT") else ""
-            print(f"{'':>4}  {'':<22} {res.horizon:>3} {res.binaries:>8}  "
-                  f"{res.status.value:<10} {res.solve_time_s:>9.2f}{by}", flush=True)
+            print(f"{'':>4}{res.horizon:>3} {res.binaries:>8}  {res.status.value:<10} "
+                  f"{res.solve_time_s:>9.2f}{by}", flush=True)
 
     stop = Interrupt()
     problems: list[str] = []
@@ -232,7 +244,7 @@ def _output_of(args: argparse.Namespace, flag: str) -> outputs.Output | None:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from dualarm_mpc.sim.closed_loop import check_events, simulate
+    from dualarm_mpc.sim.closed_loop import check_events, default_duration, simulate
 
     # before the flags: --set 'solver.realtime: false' wins
     realtime = {"solver": {"realtime": True}} if args.realtime or args.meshcat else None
@@ -243,14 +255,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if _check(scenario, joint=False, file=sys.stderr).conflicts:
         return CONFLICT
     _objects_left(scenario)
-    print(f"{'t [s]':>7}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  objects")
-
-    def progress(r) -> None:
-        names = ",".join(scenario.task.objects[j].name.removeprefix("object") for j in r.objects)
-        print(f"{r.t:>7.1f}  {r.n_delivered:>5}/{scenario.n_objects:<3}  {r.status:<10} "
-              f"{r.horizon if r.horizon is not None else '-':>3}  {r.wall_s:>9.3f}  {names}"
-              + (f"  ({r.note})" if r.note else ""), flush=True)
-
+    progress = _ReplanTable(scenario, args.duration or default_duration(scenario))
     meshcat = None
     if args.meshcat:
         from dualarm_mpc.sim.recording import start_meshcat
@@ -259,8 +264,11 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print(f"Meshcat: {meshcat.web_url()} (open it in a browser to watch the run live; "
               "it replays the run when the run ends)", flush=True)
     html = _output_of(args, "html")
-    summary = simulate(scenario, args.duration, html, progress, meshcat=meshcat,
-                       record_contacts=args.record_contacts)
+    try:
+        summary = simulate(scenario, args.duration, html, progress, meshcat=meshcat,
+                           record_contacts=args.record_contacts)
+    finally:
+        progress.finish()
     n_in = sum(d is not None for d in summary.delivered_time_s)
     wall = summary.wall_clock
     print(f"end: t = {summary.sim_time_s:.1f} s, {n_in}/{scenario.n_objects} objects resting in "
@@ -295,3 +303,86 @@ def _serve_while_watched(meshcat) -> None:
         serve_while_watched(meshcat)
     except KeyboardInterrupt:
         received.clear()
+
+
+class _ReplanTable:
+    """``simulate``'s table, told of each replan: a line per replan, a run of replans that
+    change nothing (no new plan adopted, or the same hold at rest of ``done`` and ``stuck``;
+    status, horizon, objects, note and objects delivered alike) one line with the run's times,
+    its count and its longest solve. On a terminal, one line
+    below the table, rewritten in place, says how far the run is: the sequential step (counted
+    as the replans' objects change), objects delivered, simulated time, the real-time factor
+    and the wall time left at it (the run ends about when the objects left are delivered at the
+    pace so far, at ``duration`` at the latest)."""
+
+    def __init__(self, scenario, duration: float) -> None:
+        self.scenario, self.duration = scenario, duration
+        self.tty = sys.stdout.isatty()
+        self.run: list = []  # replans not printed yet: a run of alike ones
+        self.step, self.objects = 0, None
+        self.wall0: float | None = None
+        self.shown = False  # the progress line is on the screen
+        print(f"{'t [s]':>11}  {'delivered':>9}  {'status':<10} {'T':>3}  {'solve [s]':>9}  "
+              "objects")
+
+    @staticmethod
+    def _key(r) -> tuple:
+        return r.status, r.horizon, r.objects, r.note, r.n_delivered
+
+    @staticmethod
+    def _new_plan(r) -> bool:
+        return r.adopted and r.status not in ("done", "stuck")
+
+    def __call__(self, r) -> None:
+        if self.wall0 is None:
+            self.wall0 = time.perf_counter() - r.wall_s
+        if r.objects and r.objects != self.objects:
+            self.step, self.objects = self.step + 1, r.objects
+        if self.run and not self._new_plan(r) and self._key(r) == self._key(self.run[-1]):
+            self.run.append(r)
+        else:
+            self._print_run()
+            self.run = [r]
+        if self._new_plan(r):  # never the start of a run
+            self._print_run()
+        if self.tty:
+            self._progress(r)
+
+    def finish(self) -> None:
+        """The run is over: the replans not yet printed, and no progress line."""
+        self._print_run()
+        self._clear()
+
+    def _clear(self) -> None:
+        if self.shown:
+            sys.stdout.write("\r\x1b[K")
+            self.shown = False
+
+    def _print_run(self) -> None:
+        if not self.run:
+            return
+        self._clear()
+        first, last, n = self.run[0], self.run[-1], len(self.run)
+        when = f"{first.t:.1f}" if n == 1 else f"{first.t:.1f}–{last.t:.1f}"
+        status = first.status if n == 1 else f"{first.status} ×{n}"
+        names = ",".join(self.scenario.task.objects[j].name.removeprefix("object")
+                         for j in first.objects)
+        line = (f"{when:>11}  {first.n_delivered:>5}/{self.scenario.n_objects:<3}  "
+                f"{status:<10} {first.horizon if first.horizon is not None else '-':>3}  "
+                f"{max(r.wall_s for r in self.run):>9.3f}  {names}"
+                + (f"  ({first.note})" if first.note else ""))
+        print(line.rstrip(), flush=True)
+        self.run = []
+
+    def _progress(self, r) -> None:
+        wall = time.perf_counter() - self.wall0
+        n, k = self.scenario.n_objects, r.n_delivered
+        text = f"step {self.step}, delivered {k}/{n}, t = {r.t:.1f} s"
+        if r.t > 0 and wall > 0:
+            factor = r.t / wall
+            end = min(self.duration, r.t * n / k) if k else self.duration
+            text += (f", real-time factor {factor:.2f}, {'about' if k else 'at most'} "
+                     f"{max(end - r.t, 0) / factor:.0f} s left")
+        sys.stdout.write(f"\r\x1b[K{text}")
+        sys.stdout.flush()
+        self.shown = True

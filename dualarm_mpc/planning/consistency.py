@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import re
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -88,14 +89,45 @@ FORBIDS = {
 @dataclass(frozen=True)
 class Conflict:
     """Rules (a minimal set; none: the bounds alone) under which ``objects`` cannot be
-    delivered, and why."""
+    delivered, and why: ``reason`` whole, ``why`` without the object's name and goal (equal
+    for objects that conflict alike, which :func:`grouped` prints as one line)."""
 
     objects: tuple[str, ...]
     rules: tuple[str, ...]
     reason: str
+    why: str = ""
 
     def __str__(self) -> str:
         return self.reason
+
+
+def grouped(conflicts: tuple[Conflict, ...] | list[Conflict]) -> list[str]:
+    """One line per group of conflicts with the same rules and the same ``why``, in the order
+    of their first: ``"objects 1–10: the goal lies beyond …"``; a group of one is its
+    ``reason``."""
+    groups: dict[tuple, list[Conflict]] = {}
+    for c in conflicts:
+        groups.setdefault((c.rules, c.why or c.reason), []).append(c)
+    return [members[0].reason if len(members) == 1 else
+            f"{_names([o for c in members for o in c.objects])}: {why}"
+            for (_, why), members in groups.items()]
+
+
+def _names(names: list[str]) -> str:
+    """``objects 1–3, 5`` where every name is ``object`` and a number (the built-in scenes'),
+    else the names."""
+    split = [re.fullmatch(r"object(\d+)", n) for n in names]
+    if not all(split):
+        return ", ".join(names)
+    numbers = sorted({int(m[1]) for m in split})
+    runs: list[list[int]] = []
+    for k in numbers:
+        if runs and runs[-1][-1] == k - 1:
+            runs[-1].append(k)
+        else:
+            runs.append([k])
+    listed = ", ".join(f"{r[0]}–{r[-1]}" if len(r) > 2 else ", ".join(map(str, r)) for r in runs)
+    return f"objects {listed}"
 
 
 @dataclass(frozen=True)
@@ -220,41 +252,50 @@ def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[st
                   and _feasible(held, options, anywhere) is Status.INFEASIBLE)
     names = tuple(name for name, _ in needed.rules)
     return Conflict((scenario.task.objects[j].name,), names,
-                    _reason(scenario, j, names, never_held))
+                    _reason(scenario, j, names, never_held), _why(scenario, j, names, never_held))
 
 
 def _reason(scenario: Scenario, j: int, rules: tuple[str, ...],
             never_held: bool) -> str:
     """Why object j cannot be delivered, in plain words."""
     obj = scenario.task.objects[j]
-    head = f"{obj.name} → {obj.goal}: "
+    return f"{obj.name} → {obj.goal}: " + _why(scenario, j, rules, never_held)
+
+
+def _why(scenario: Scenario, j: int, rules: tuple[str, ...], never_held: bool) -> str:
+    """:func:`!_reason` without the object's name and goal."""
     if not rules:
-        return head + (f"no plan brings it into its goal within {scenario.solver.max_horizon} "
+        return (f"no plan brings it into its goal within {scenario.solver.max_horizon} "
                        f"steps of {scenario.robot.dt} s with |v| ≤ {scenario.robot.max_speed} and "
                        f"|u| ≤ {scenario.robot.max_force} (solver.max_horizon, dt, max_speed, "
                        "max_force)")
     listed = " and ".join(rules)
     if never_held:
-        return head + f"{listed} never let a hand hold it, and it is not in its goal"
+        return f"{listed} never let a hand hold it, and it is not in its goal"
     beyond = _beyond_reach(scenario, j)
     what = [FORBIDS.get(name, f"({name.split(' ', 1)[-1]})") for name in rules]
     why = " and ".join(f"{name} {w}" if name in FORBIDS else name for name, w in
                        zip(rules, what, strict=True))
     if beyond:
-        return head + f"the goal lies beyond the hands' reach ({beyond}) and {why}"
-    return head + f"delivering it conflicts with {why}"
+        return f"the goal lies beyond the hands' reach ({beyond}) and {why}"
+    return f"delivering it conflicts with {why}"
 
 
 def _beyond_reach(scenario: Scenario, j: int) -> str:
-    """The bound that keeps a held object j out of its goal (``"y ≤ 0.95"``), or ""."""
+    """The bounds that keep a held object j out of its goal, the hand range's (plan.png draws
+    it) and a held object's centre's (``"hands y ≤ 0.9, a held object's centre y ≤ 0.95"``),
+    or ""."""
     ws = Rect.of(scenario.robot.workspace)
     half = scenario.task.objects[j].grasp_half_size
     goal = target_box(scenario, j)
     for axis, name in enumerate("xy"):
         if goal.lo[axis] > ws.hi[axis] + half:
-            return f"{name} ≤ {ws.hi[axis] + half:.3g}"
-        if goal.hi[axis] < ws.lo[axis] - half:
-            return f"{name} ≥ {ws.lo[axis] - half:.3g}"
+            edge, op, held = ws.hi[axis], "≤", ws.hi[axis] + half
+        elif goal.hi[axis] < ws.lo[axis] - half:
+            edge, op, held = ws.lo[axis], "≥", ws.lo[axis] - half
+        else:
+            continue
+        return f"hands {name} {op} {edge:.3g}, a held object's centre {name} {op} {held:.3g}"
     return ""
 
 

@@ -21,6 +21,7 @@ the model's filter groups.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,6 +56,32 @@ from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
 from dualarm_mpc.systems.gripper import Gripper
 from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator, Limits
 from dualarm_mpc.systems.state_estimator import StateEstimator
+
+# Drake's log lines that say nothing about this station, each by the start of its message: the
+# table is a rigid half space, and no deformable body is ever added to touch it; the URL of a
+# Meshcat server, which the command line prints itself where a person is to open it (--meshcat).
+DRAKE_NOISE = ("Rigid (non-deformable) half spaces are not currently supported for deformable "
+               "contact", "Meshcat listening for connections at")
+
+
+class _DrakeNoise(logging.Filter):
+    """Drops ``DRAKE_NOISE`` from the ``drake`` logger, where Drake's C++ logs arrive."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith(DRAKE_NOISE)
+
+
+def quiet_drake() -> None:
+    """Install the filter of ``DRAKE_NOISE`` on the ``drake`` logger, once. Done when this
+    module loads: a Meshcat server may start before the station is built
+    (``closed_loop.simulate``)."""
+    drake = logging.getLogger("drake")
+    if not any(isinstance(f, _DrakeNoise) for f in drake.filters):
+        drake.addFilter(_DrakeNoise())
+
+
+quiet_drake()
+
 
 # The arms' names in the robot model: arm 1 (index 0) is the right arm, arm 2 (index 1) the left.
 ARM_SIDES = ("right", "left")
