@@ -32,7 +32,7 @@ demo: $(VENV)/.installed-base
 	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --set 'goal_margin: 0.03' --set 'goal_slots: true' \
 		--set 'object_clearance: 0.01' --out $(OUT)/plan.json --plot $(OUT)/plan.png
 	$(BIN)/dualarm-mpc simulate table1_vc --rule 2 --html $(OUT)/replay.html \
-		--summary $(OUT)/summary.json
+		--summary $(OUT)/summary.json --plot $(OUT)/run.png
 
 # -n auto: a pytest-xdist worker per core; much of the suite (Drake's physics, the controller's
 # Python systems) runs on one core, so two workers take 0.6 of the serial time on 2 cores.

@@ -45,6 +45,9 @@ _EXPORTS = {
     "Summary": "dualarm_mpc.sim.closed_loop",
     "plot_plan": "dualarm_mpc.figures.plan",
     "plan_figure": "dualarm_mpc.figures.plan",
+    "plot_timeline": "dualarm_mpc.figures.timeline",
+    "timeline_figure": "dualarm_mpc.figures.timeline",
+    "RunLog": "dualarm_mpc.sim.closed_loop",
     "knock": "dualarm_mpc.sim.disturbances",
     "move_goal": "dualarm_mpc.sim.disturbances",
     "load_scenario": "dualarm_mpc.model.scenario",
@@ -66,6 +69,7 @@ __all__ = [
     "Plan",
     "PlanTrajectories",
     "PlanningError",
+    "RunLog",
     "Scenario",
     "ScenarioError",
     "State",
@@ -82,11 +86,14 @@ __all__ = [
     "plan_figure",
     "plan_trajectories",
     "plot_plan",
+    "plot_timeline",
     "simulate",
+    "timeline_figure",
 ]  # = _EXPORTS (tests/test_api.py)
 
 if TYPE_CHECKING:  # what a type checker and an IDE see; at run time __getattr__ loads them
     from dualarm_mpc.figures.plan import plan_figure, plot_plan
+    from dualarm_mpc.figures.timeline import plot_timeline, timeline_figure
     from dualarm_mpc.logic.parser import LTLSyntaxError, parse
     from dualarm_mpc.milp.solver import Interrupt
     from dualarm_mpc.model.mld import State, delivered_objects
@@ -100,7 +107,7 @@ if TYPE_CHECKING:  # what a type checker and an IDE see; at run time __getattr__
     from dualarm_mpc.planning.consistency import check
     from dualarm_mpc.planning.sequential import PlanningError
     from dualarm_mpc.planning.task import ConflictError, VerificationError, plan
-    from dualarm_mpc.sim.closed_loop import Summary, simulate
+    from dualarm_mpc.sim.closed_loop import RunLog, Summary, simulate
     from dualarm_mpc.sim.diagram import MakeDiagram
     from dualarm_mpc.sim.disturbances import knock, move_goal
     from dualarm_mpc.systems.mpc_planner import MpcPlanner

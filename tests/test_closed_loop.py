@@ -481,16 +481,25 @@ def test_cli_simulate_writes_the_summary_json(tmp_path, capsys) -> None:
     scenario_path = tmp_path / "scene.yaml"
     scenario_path.write_text(CLI_SCENARIO)
     load_scenario(str(scenario_path), {})  # the file is a valid scenario on its own
-    out = tmp_path / "summary.json"
-    code = main(["simulate", str(scenario_path), "--duration", "30", "--summary", str(out)])
+    out, png = tmp_path / "summary.json", tmp_path / "run.png"
+    code = main(["simulate", str(scenario_path), "--duration", "30", "--summary", str(out),
+                 "--plot", str(png)])
     printed = capsys.readouterr()
     assert code == 0, printed.err
-    assert f"wrote {out}" in printed.out
+    assert f"wrote {out}" in printed.out and f"wrote {png}" in printed.out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the run's timeline (issue 51)
     data = json.loads(out.read_text())
     for key in ("mode", "replan_latency_s", "goals", "objects", "final_object_pos",
                 "final_object_speed", "delivered_time_s", "replans", "min_arm_clearance_m",
-                "max_hand_penetration_m", "object_contacts"):
+                "max_hand_penetration_m", "object_contacts", "holds", "clearance"):
         assert key in data, key
+    # one hand held the object, once, and let go before it was delivered; the clearance at
+    # every replan, never below the run's least
+    (hold,) = data["holds"]
+    assert hold["object"] == "object1" and hold["arm"] in (1, 2)
+    assert 0 < hold["from"] < hold["to"] <= data["delivered_time_s"][0] + 0.02
+    assert [t for t, _ in data["clearance"]] == [r["t"] for r in data["replans"]]
+    assert min(m for _, m in data["clearance"]) >= data["min_arm_clearance_m"]
     assert data["mode"] == "lockstep" and data["replan_latency_s"] == 0.0
     assert "wall_clock" not in data and "real-time factor" in printed.out  # on stdout instead
     # for people (issue 51): replans that change nothing on one line with their count, none of

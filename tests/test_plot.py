@@ -84,3 +84,59 @@ def test_plot_plan_writes_a_png(plan, tmp_path) -> None:
     path = tmp_path / "plan.png"
     plot_plan(plan, path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# --- issue 51: releases and throws marked, the step panels' axes, the steps' ends ---------------
+
+
+@pytest.fixture(scope="module")
+def thrown(plan) -> Plan:
+    """``plan`` where hand 1 holds object 1 one Δt past the step that delivered it, and throws
+    object 3 (it leaves the hand at 0.3 m/s)."""
+    t = plan.trajectory
+    grasp, vel = t.grasp.copy(), t.object_vel.copy()
+    grasp[2, 0, 0] = 1  # held at step 1's end, delivered: let go in step 2's first Δt
+    vel[4, 2] = [0.0, 0.3]
+    trajectory = Trajectory(t.hand_pos, t.hand_vel, t.force, t.object_pos, vel, grasp)
+    return Plan(dt=plan.dt, rule=plan.rule, delivery=plan.delivery, goals=plan.goals,
+                objects=plan.objects, workspace=plan.workspace, trajectory=trajectory,
+                delivered_step=plan.delivered_step, segments=plan.segments)
+
+
+def test_where_a_hand_lets_go_is_marked_a_throw_apart(thrown) -> None:
+    fig = plan_figure(thrown)
+    table, step1, step2, _ = fig.axes
+
+    def marks(ax, marker):
+        return [tuple(line.get_xydata()[0]) for line in ax.lines if line.get_marker() == marker]
+
+    # put down: objects 1 and 2 where they end (1's let go after its step: in step 1's panel)
+    assert sorted(marks(table, "x")) == [(0.0, 1.0), (0.0, 1.0)]
+    assert marks(table, "*") == [(0.1, 1.0)]  # object 3 thrown where it left the hand
+    assert len(marks(step1, "x")) == 2 and marks(step2, "*") == [(0.1, 1.0)]
+    labels = [t.get_text() for t in table.get_legend().get_texts()]
+    assert "a hand puts the object down" in labels
+    assert "a hand throws it (lets go at speed; it slides on)" in labels
+    plt.close(fig)
+
+
+def test_the_step_panels_axes_are_labelled(fig) -> None:
+    _, step1, step2, _ = fig.axes
+    assert step1.get_ylabel() == "y [m]" and step1.get_xlabel() == "x [m]"
+    assert step2.get_xlabel() == "x [m]" and len(step1.get_xticks()) > 1
+
+
+def test_a_hold_past_its_steps_end_goes_on_hatched(thrown) -> None:
+    """Before: the grey end-of-step line fell inside a hold bar (§V-D seed 3: step 1 ends at
+    6 s, arm 1 holds an object until 7 s), as if the step ended while its work went on."""
+    fig = plan_figure(thrown)
+    timeline = fig.axes[-1]
+    bars = sorted((b.get_paths()[0].vertices[:, 0].min(), b.get_paths()[0].vertices[:, 0].max(),
+                   bool(b.get_hatch())) for b in timeline.collections)
+    assert bars == [(1 * DT, 2 * DT, False), (1 * DT, 2 * DT, False), (2 * DT, 3 * DT, True),
+                    (3 * DT, 4 * DT, False)]
+    assert [line.get_xdata()[0] for line in timeline.lines] == pytest.approx([2 * DT, 4 * DT])
+    labels = [t.get_text() for t in timeline.get_legend().get_texts()]
+    assert labels == ["holds object n, in its goal's colour",
+                      "holds it delivered: lets go in the next step", "end of a sequential step"]
+    plt.close(fig)

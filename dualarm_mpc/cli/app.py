@@ -68,6 +68,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--html", type=output, action=Once,
                    help="write the self-contained Meshcat replay here")
     p.add_argument("--summary", type=output, action=Once, help="write the summary JSON here")
+    p.add_argument("--plot", type=plot, action=Once,
+                   help="write a PNG (or PDF, SVG, ...) of the run's timeline here: what each "
+                   "hand held, the replans, deliveries, events and the arms' clearance")
     p.add_argument("--meshcat", action="store_true",
                    help="start Drake's Meshcat server, print its URL and draw the run there live, "
                    "at real time (implies --realtime)")

@@ -276,6 +276,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
           f"{wall['realtime_factor']:.2f}")
     partial = " (partial)" if summary.interrupted else ""
     written = _write(_output_of(args, "summary"), summary.save, partial)
+    written = _write(_output_of(args, "plot"), lambda out: _plot_run(summary, out, scenario),
+                     partial) and written
     written = _write(html, None, f" ({'partial; ' if summary.interrupted else ''}open it in a "
                      "browser: it plays the run from the start)") and written
     if summary.interrupted:
@@ -288,6 +290,17 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         print("error: not every object ends at rest inside its goal", file=sys.stderr)
         return FAILED
     return _failed_writes(OK, written)
+
+
+def _plot_run(summary, path, scenario) -> None:
+    """``--plot``: the run's timeline (``figures/timeline.py``), from its summary."""
+    from dualarm_mpc.figures.timeline import plot_timeline
+
+    data = summary.to_json()
+    delivered = sum(d is not None for d in summary.delivered_time_s)
+    plot_timeline(data, path, f"{scenario.name}, rule {scenario.task.rule}, closed loop "
+                  f"({summary.mode}): {delivered}/{scenario.n_objects} delivered, t = "
+                  f"{summary.sim_time_s:.1f} s" + (" (partial)" if summary.interrupted else ""))
 
 
 def _serve_while_watched(meshcat) -> None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +35,9 @@ from dualarm_mpc.sim.disturbances import Disturbance, World, knock, move_goal
 log = logging.getLogger(__name__)
 
 SETTLE_S = 1.0  # simulated seconds everything stays at rest before the run ends
+# Simulated seconds between two samples of the grasps and of the arms' clearance (``RunLog``): as
+# ``CLEARANCE_PERIOD_S``; each sample costs about 0.1 ms.
+SAMPLE_S = 0.02
 
 
 @dataclass(frozen=True)
@@ -70,6 +73,14 @@ class Summary:
     # plant's contact results sampled as the clearances (systems/object_contacts.py), by when
     # they first did: {objects: [name, name], t: first sample, samples: how many found it}.
     object_contacts: list[dict] = field(default_factory=list)
+    # Which object each hand held over the run, from the gripper's grasps sampled every
+    # ``SAMPLE_S`` (``RunLog``): {arm: 1 (right) or 2 (left), object: name, from, to: s}, by
+    # ``from``; a hold the run's end cut short ends at ``sim_time_s``.
+    holds: list[dict] = field(default_factory=list)
+    # The arms' clearance over the run: [t, m] at each replan's time t, m the least distance
+    # between the two arms' collision geometries (floored to 0.1 mm) at the samples since the
+    # replan before, every ``SAMPLE_S``; ``min_arm_clearance_m`` is the least over the run.
+    clearance: list[list[float]] = field(default_factory=list)
     # What the run took on this machine, which depends on its speed and load: ``wall_time_s``,
     # ``realtime_factor`` (simulated / wall time) and ``replan_wall_s`` (one per replan, as in
     # ``replans``). In the JSON only in real time, where it explains the run; in lockstep the
@@ -174,6 +185,87 @@ class _Pace:
                         "(a replan's wall-time budget stretches with it)", kept, self.rate)
 
 
+class RunLog(Sequence):
+    """What a closed-loop run of a :class:`~dualarm_mpc.sim.diagram.DualArm` does, as its
+    summary records it, by looking only: every replan (the planner's ``replan`` output; the log
+    is the sequence of them), which object each hand holds (the gripper's ``grasp`` output) and
+    the least distance between the arms, these two sampled every ``SAMPLE_S`` of simulated time.
+    Call it after every simulator step (from the ``Simulator``'s monitor, as :func:`simulate`
+    does; ``progress`` hears of each new replan); :meth:`summary` is the run's
+    :class:`Summary` so far, for a Diagram run by hand too (``examples/disturbance.py``)."""
+
+    def __init__(self, dual: DualArm, progress: Callable[[Replan], None] | None = None) -> None:
+        self.dual, self.progress = dual, progress
+        self._replans: list[Replan] = []
+        self._held: dict[tuple[int, int], float] = {}  # (arm, object) held now: since when
+        self._holds: list[tuple[int, int, float, float]] = []  # (arm, object, from, to)
+        self._least = math.inf  # the arms' least distance sampled since the last replan
+        self._clearance: list[list[float]] = []
+        self._next = 0.0  # when the next sample is due
+        self._wall0 = time.perf_counter()
+
+    def __getitem__(self, k):
+        return self._replans[k]
+
+    def __len__(self) -> int:
+        return len(self._replans)
+
+    def __call__(self, context: Context) -> bool:
+        """Sample the run if a sample is due, and record the planner's latest replan; whether it
+        is new. ``context``: the root context."""
+        t = context.get_time()
+        if t >= self._next - 1e-9:
+            self._sample(context, t)
+            self._next = (math.floor(t / SAMPLE_S + 1e-6) + 1) * SAMPLE_S
+        planner = self.dual.planner
+        r = planner.get_replan_output_port().Eval(planner.GetMyContextFromRoot(context))
+        if r is None or (self._replans and r.t <= self._replans[-1].t):
+            return False
+        self._replans.append(r)
+        if math.isfinite(self._least):
+            self._clearance.append([round(r.t, 3), math.floor(self._least * 1e4) / 1e4])
+        self._least = math.inf
+        if self.progress:
+            self.progress(r)
+        return True
+
+    def _sample(self, context: Context, t: float) -> None:
+        dual = self.dual
+        gripper = dual.stack.gripper
+        grasp = gripper.get_grasp_output_port().Eval(gripper.GetMyContextFromRoot(context))
+        n = dual.station.n_objects
+        now = {(i, j) for i in range(2) for j in range(n) if grasp[i * n + j] > 0.5}
+        for pair in now - self._held.keys():
+            self._held[pair] = t
+        for pair in self._held.keys() - now:
+            self._holds.append((*pair, self._held.pop(pair), t))
+        graph = dual.station.scene_graph
+        query = graph.get_query_output_port().Eval(graph.GetMyContextFromRoot(context))
+        self._least = min(self._least, dual.clearance.clearance(query))
+
+    def holds(self, t: float) -> list[dict]:
+        """The summary's ``holds``, those not yet ended ending at ``t``."""
+        names = [o.name for o in self.dual.scenario.task.objects]
+        ended = [*self._holds, *((i, j, since, t) for (i, j), since in self._held.items())]
+        return [{"arm": i + 1, "object": names[j], "from": round(a, 3), "to": round(b, 3)}
+                for i, j, a, b in sorted(ended, key=lambda h: (h[2], h[0], h[1]))]
+
+    @property
+    def clearance(self) -> list[list[float]]:
+        """The summary's ``clearance``: [t, m] per replan."""
+        return list(self._clearance)
+
+    def summary(self, context: Context, events: Sequence[Event | dict] = (),
+                interrupted: bool = False, wall_s: float | None = None) -> Summary:
+        """The run's :class:`Summary` at the root ``context``'s time. ``events``: the
+        environment changes made during the run (each an ``Event`` or its fields as a dict:
+        ``{"time", "kind", "target", "position"}`` or ``"box"``), listed after the scenario's;
+        ``wall_s``: the run's wall time (by default, since this log was made)."""
+        wall = time.perf_counter() - self._wall0 if wall_s is None else wall_s
+        return _summary(self.dual.scenario, self.dual, context, context.get_time(), wall, self,
+                        events, interrupted)
+
+
 class _Monitor:
     """The run's ``Simulator`` monitor, called after every simulator step (the plant steps every
     2 ms; nothing changes in between). It only looks: records every replan from the planner's
@@ -188,19 +280,13 @@ class _Monitor:
                  pace: _Pace | None = None) -> None:
         self.dual, self.events, self.progress, self.observe = dual, events, progress, observe
         self.pace = pace
-        self.replans: list[Replan] = []
+        self.replans = RunLog(dual, progress)
         self.finished_at: float | None = None
 
     def record(self, context) -> bool:
-        """Record the planner's latest replan; whether it is new."""
-        planner = self.dual.planner
-        r = planner.get_replan_output_port().Eval(planner.GetMyContextFromRoot(context))
-        if r is None or (self.replans and r.t <= self.replans[-1].t):
-            return False
-        self.replans.append(r)
-        if self.progress:
-            self.progress(r)
-        return True
+        """Record the planner's latest replan, and sample the run (:class:`RunLog`); whether
+        the replan is new."""
+        return self.replans(context)
 
     def __call__(self, context) -> EventStatus:
         replanned = self.record(context)
@@ -291,8 +377,8 @@ def _all_at_rest(dual, context) -> bool:
     return bool(at_rest(_object_velocities(dual, context), REST_SPEED).all())
 
 
-def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: list[Replan],
-             applied: list[Event] = (), interrupted: bool = False) -> Summary:
+def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: RunLog,
+             applied: Sequence[Event | dict] = (), interrupted: bool = False) -> Summary:
     plant = dual.station.plant
     pc = plant.GetMyContextFromRoot(context)
     s = dual.planner.latest_state(dual.planner.GetMyContextFromRoot(context))
@@ -316,7 +402,8 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
                   "delivered": r.n_delivered, "note": r.note} for r in replans],
         sim_time_s=round(t, 3),
         all_delivered=all(resting),
-        events=[e.__dict__ for e in [*scenario.events, *applied]],
+        events=[e if isinstance(e, dict) else dict(e.__dict__)
+                for e in [*scenario.events, *applied]],
         replans_over_budget=[round(r.t, 3) for r in replans
                              if r.status in ("searching", "over_budget")],
         waiting_s=round(scenario.robot.dt * sum(r.status == "searching" for r in replans), 3),
@@ -324,6 +411,8 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         min_arm_clearance_m=_least(dual.clearance, context),
         max_hand_penetration_m=_penetration(_least(dual.hand_clearance, context)),
         object_contacts=_object_contacts(scenario, dual, context),
+        holds=replans.holds(t),
+        clearance=replans.clearance,
         wall_clock={"wall_time_s": round(wall, 3),
                     "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),
                     "replan_wall_s": [round(r.wall_s, 4) for r in replans],
