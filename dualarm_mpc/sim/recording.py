@@ -329,9 +329,9 @@ class Notes:
 HUD_STYLE = ("position:fixed;left:10px;top:10px;z-index:10;pointer-events:none;"
              "white-space:pre;background:rgba(255,255,255,0.85);color:#222;border-radius:6px;"
              "padding:6px 10px;font-family:system-ui,sans-serif")
-HUD = f"""<div style="{HUD_STYLE}"><div id="hud" style="font-size:16px;font-weight:600;\
-line-height:1.4"></div><div id="hud-legend" style="font-size:12px;line-height:1.35;color:#444;\
-margin-top:4px">faint lines: the plan in force, hands in the arms' colours, objects in their goals'
+HUD = f"""<div style="{HUD_STYLE}"><div id="hud" style="font-size:14px;font-weight:600;\
+line-height:1.4"></div><div id="hud-legend" style="font-size:11px;line-height:1.35;color:#444;\
+margin-top:4px">faint lines: the plan in force (hands: the arms' colours; objects: their goals')
 outlines: its goal slots \u00b7 discs: release points \u00b7 bold lines: a thrown box's slide\
 </div></div>
 <script>
