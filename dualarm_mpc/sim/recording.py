@@ -193,6 +193,7 @@ class Notes:
         self._held = [-1, -1]
         self._slides: dict[int, list] = {}  # object → [since, points of the piece not drawn]
         self._count = 0  # paths drawn so far (each drawing's path is new)
+        self._later: set[str] = set()  # paths shown after t = 0 and not hidden again since
 
     def start(self) -> None:
         """Label the objects and the arms; from now on, draw the plans and the releases."""
@@ -237,10 +238,12 @@ class Notes:
         animation = self.meshcat.get_mutable_recording()
         if animation.frame(since) > 0:
             animation.SetProperty(0, path, "visible", False)
+            self._later.add(path)
         animation.SetProperty(animation.frame(since), path, "visible", True)
         if until is not None:
             animation.SetProperty(animation.frame(until), path, "visible", False)
             self.meshcat.SetProperty(path, "visible", False)
+            self._later.discard(path)
 
     def _show_plan(self, plan: TimedTrajectory, since: float, goals: dict) -> None:
         if self._plan_path is not None:
@@ -309,7 +312,14 @@ class Notes:
         what is drawn. From the run's ``summary`` (``closed_loop.Summary``: a step
         is a run of replans for the same objects) and what :class:`Notes` saw. The page's
         ``?t=`` (simulated seconds) opens the replay paused at that time, and seeking by script
-        (``viewer.animator.seek``) shows the time sought in the time field."""
+        (``viewer.animator.seek``) shows the time sought in the time field.
+
+        Called as the run ends, it also hides in the scene what the run drew after t = 0: the
+        page shows each only when the animation does, not all at once while the animation
+        loads (a live page goes on to replay the recording, which shows them again)."""
+        for path in sorted(self._later):
+            self.meshcat.SetProperty(path, "visible", False)
+        self._later.clear()
         names = [o["name"] for o in summary.objects]
         rows, step, current, plan = [], 0, None, (None, None)
         for r in summary.replans:
