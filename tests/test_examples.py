@@ -32,3 +32,6 @@ def test_disturbance_knocks_moves_a_goal_and_still_delivers(tmp_path) -> None:
     assert "object1 in its goal, object2 in its goal" in out
     replay = (tmp_path / "out" / "disturbance.html").read_text()
     assert replay.rstrip().endswith("</html>") and "animation" in replay
+    # its timeline (issue 51): a picture of the disturbance at a glance
+    timeline = tmp_path / "out" / "disturbance.png"
+    assert timeline.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "wrote out/disturbance.png" in out
