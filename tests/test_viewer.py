@@ -311,6 +311,15 @@ SEEK_JS = "viewer.animator.seek(arguments[0]); return document.getElementById('h
 # Whether a path holds a drawn object (Meshcat's scene_tree.find makes an empty node otherwise).
 DRAWN_AT_JS = "return viewer.scene_tree.find(arguments[0]).object.children.length > 0"
 COUNT_JS = "return Object.keys(viewer.scene_tree.find(arguments[0]).children).length"
+# Where each of the paths given is drawn in the view, in normalized device coordinates.
+CENTRES_JS = """
+const THREE = MeshCat.THREE;
+return arguments[0].map(path => {
+  const box = new THREE.Box3().setFromObject(viewer.scene_tree.find(path).object);
+  const p = box.getCenter(new THREE.Vector3()).project(viewer.camera);
+  return [p.x, p.y];
+});
+"""
 
 
 def test_the_demo_replay_opens_at_a_simulated_time_and_its_hud_says_what_runs(
@@ -360,6 +369,18 @@ def test_the_demo_replay_labels_the_objects_and_arms_and_shows_every_throw(
         assert chromium.execute_script(DRAWN_AT_JS, ["notes", arm]), arm
     for kind in ("plan", "release", "slide"):
         assert chromium.execute_script(COUNT_JS, ["notes", kind]) > 0, kind
+    # Drawn with their text, not black: a texture that loads after a paused scene was drawn
+    # shows only once the scene is drawn again (recording.HUD does).
+    time.sleep(2)
+    pixels = matplotlib.image.imread(io.BytesIO(chromium.get_screenshot_as_png()), format="png")
+    labels = [["notes", "arm1"], ["notes", "arm2"],
+              *(["drake", "illustration", o["name"], o["name"], "number"]
+                for o in summary["objects"])]
+    ndc = np.array(chromium.execute_script(CENTRES_JS, labels))
+    columns = ((ndc[:, 0] + 1) / 2 * VIEW["width"]).astype(int)
+    rows = ((1 - ndc[:, 1]) / 2 * VIEW["height"]).astype(int)
+    lit = pixels[rows, columns, :3].max(axis=1) > 0.2
+    assert lit[:2].all() and lit[2:].sum() >= 8, (labels, pixels[rows, columns])
     thrown = set()
     for t in np.arange(0.0, summary["sim_time_s"], 0.5):
         hud = chromium.execute_script(SEEK_JS, float(t))

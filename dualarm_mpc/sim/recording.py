@@ -308,11 +308,12 @@ class Notes:
         """The replay's head-up display: HTML for :func:`save_recording`. Top left, keyed by the
         animation's time: the simulated time, the sequential step and its objects, the last
         replan's status and cost (a kept plan's, with when it was made), delivered k/N, what
-        each arm holds and where it goes, and each throw for 3 s after it; below, a legend of
-        what is drawn. From the run's ``summary`` (``closed_loop.Summary``: a step
-        is a run of replans for the same objects) and what :class:`Notes` saw. The page's
-        ``?t=`` (simulated seconds) opens the replay paused at that time, and seeking by script
-        (``viewer.animator.seek``) shows the time sought in the time field.
+        each arm holds and where it goes, and each throw and each environment event (an object
+        knocked, a goal moved) for 3 s after it; below, a legend of what is drawn. From the
+        run's ``summary`` (``closed_loop.Summary``: a step is a run of replans for the same
+        objects) and what :class:`Notes` saw. The page's ``?t=`` (simulated seconds) opens the
+        replay paused at that time, and seeking by script (``viewer.animator.seek``) shows the
+        time sought in the time field.
 
         Called as the run ends, it also hides in the scene what the run drew after t = 0: the
         page shows each only when the animation does, not all at once while the animation
@@ -329,11 +330,21 @@ class Notes:
             if r["adopted"]:
                 plan = (r["cost"], r["t"])
             rows.append([r["t"], step, r["status"], r["cost"], *plan, objects])
+        events = sorted([e["time"], _event_text(e, names)] for e in summary.events)
         data = {"n": len(names), "goals": [o["goal"] for o in summary.objects], "replans": rows,
                 "delivered": sorted(d for d in summary.delivered_time_s if d is not None),
                 "holds": self.holds, "releases": self.releases, "thrown": THROWN_SPEED,
-                "arms": list(ARM_NAMES)}
+                "arms": list(ARM_NAMES), "events": events}
         return HUD.replace("__RUN__", json.dumps(data).replace("</", "<\\/"))
+
+
+def _event_text(event: dict, names: list[str]) -> str:
+    """An environment event of the summary, as the HUD says it."""
+    if event["kind"] == "move_object":
+        x, y = event["position"]
+        return f"object {names.index(event['target']) + 1} knocked to ({x:.2f}, {y:.2f})"
+    x0, x1, y0, y1 = event["box"]
+    return f"goal {event['target']} moved to x {x0:.2f}\u2013{x1:.2f}, y {y0:.2f}\u2013{y1:.2f}"
 
 
 HUD_STYLE = ("position:fixed;left:10px;top:10px;z-index:10;pointer-events:none;"
@@ -380,6 +391,9 @@ outlines: its goal slots \u00b7 discs: release points \u00b7 bold lines: a throw
         lines.push(`${{fixed(at, 1)}} s: ${{run.arms[arm]}} threw ${{j + 1}} ` +
                    `at ${{fixed(speed, 2)}} m/s`);
     }}
+    for (const [at, what] of upTo(run.events, t)) {{  // the disturbances of the last 3 s
+      if (t - at < 3) lines.push(`${{fixed(at, 1)}} s: ${{what}}`);
+    }}
     return lines.join("\\n");
   }}
   let shown = null;
@@ -398,6 +412,14 @@ outlines: its goal slots \u00b7 discs: release points \u00b7 bold lines: a throw
     animator.display_progress(Math.max(0, Math.min(animator.duration, t)));
     show();
   }};
+  // A paused scene is drawn again only when it changes, and the labels' textures load after
+  // their meshes (each Meshcat mesh file has a loader of its own, which says nothing when done):
+  // draw it again twice a second for the first 20 s, or a label opened paused stays black.
+  let redraws = 40;
+  const redraw = setInterval(() => {{
+    viewer.set_dirty();
+    if (--redraws === 0) clearInterval(redraw);
+  }}, 500);
   const at = parseFloat(new URLSearchParams(location.search).get("t"));
   if (Number.isFinite(at)) {{  // ?t=5.5: paused at 5.5 s of simulated time
     const go = () => {{ animator.pause(); animator.seek(at); }};
