@@ -236,8 +236,8 @@ def render_clock(results: Path) -> str:
         ratios = [r["sim_time_s"] / base[key(r)] for r in ok if key(r) in base]
         busy = d["options"].get("busy", 0)
         rows.append([
-            f"{ok[0]['mode']}, latency {', '.join(f'{v:g}' for v in sorted(latency))} s, "
-            + (f"{busy} busy processes" if busy else "machine otherwise idle"),
+            f"{ok[0]['mode']}, latency {', '.join(f'{v:g}' for v in sorted(latency))} s"
+            + (f", beside {busy} busy processes" if busy else ""),
             f"{len(ok)}", f"{sum(r['delivered'] for r in ok)}/{sum(r['n_objects'] for r in ok)}",
             f"{sum(r['sim_time_s'] for r in ok) / len(ok):.1f}",
             f"{max(ratios):.2f}×" if ratios else "—",
