@@ -182,6 +182,12 @@ def test_the_replay_plays_offline_in_chromium_with_the_table_filling_the_view(
     assert duration == pytest.approx(RUN_S, abs=0.1)
     start, end = np.array(chromium.execute_script(LINK_AT_JS, [0.0, duration]))
     assert np.abs(start - end).max() > 1e-3, "the right arm's link 2 did not move in the replay"
+    # Played to its end, the replay stays there, and so do its time field and its HUD (Meshcat
+    # resets its actions' times to 0).
+    WebDriverWait(chromium, 60).until(
+        lambda driver: not driver.execute_script("return viewer.animator.playing"))
+    assert chromium.execute_script("return viewer.animator.time") == pytest.approx(duration)
+    assert chromium.execute_script(HUD_JS).splitlines()[0] == f"t = {duration:.1f} s"
 
 
 def test_cli_meshcat_serves_the_run_live_and_still_writes_the_replay(

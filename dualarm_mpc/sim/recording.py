@@ -398,7 +398,9 @@ outlines: its goal slots \u00b7 discs: release points \u00b7 bold lines: a throw
   }}
   let shown = null;
   function show() {{
-    const said = text(animator.actions.reduce((m, a) => Math.max(m, a.time), 0));
+    // The time field's: when the replay ends, Meshcat resets its actions' times to 0 and leaves
+    // the scene and the field at the end.
+    const said = text(animator.time);
     if (said !== shown) hud.textContent = shown = said;
   }}
   function update() {{
