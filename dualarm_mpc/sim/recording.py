@@ -1,7 +1,12 @@
 """Meshcat for a run: the view a person sees (camera on the table and the robot, clutter hidden),
 what the replay says besides the scene (:class:`Notes`: labels, the plan in force, releases and
 slides, and a head-up display of the run), the live server, and the headless recording saved as
-one self-contained HTML file (docs/drake.md)."""
+one self-contained HTML file (docs/drake.md).
+
+Why one module of this length: the notes are drawn into the recording (each shown by its
+animation), the head-up display goes into the page :func:`save_recording` writes, the camera
+frames the arms' names the notes lay out, and the labels and the live page's sign are one kind of
+text quad; apart, each part would reach into the others' paths, frames and constants."""
 
 from __future__ import annotations
 
