@@ -312,6 +312,17 @@ def said_at(summary: dict, t: float) -> tuple[int, int, dict]:
     return step, delivered, last
 
 
+def holding(summary: dict, arm: int, t: float) -> str:
+    """What the HUD says arm ``arm`` (1 or 2) holds at ``t``, from the summary's holds."""
+    names = [o["name"] for o in summary["objects"]]
+    held = [names.index(h["object"]) for h in summary["holds"]
+            if h["arm"] == arm and h["from"] <= t < h["to"]]
+    name = "arm 1 (right)" if arm == 1 else "arm 2 (left)"
+    if not held:
+        return f"{name}: free"
+    return f"{name}: holds {held[0] + 1} \u2192 {summary['objects'][held[0]]['goal']}"
+
+
 HUD_JS = "return document.getElementById('hud').textContent"
 SEEK_JS = "viewer.animator.seek(arguments[0]); return document.getElementById('hud').textContent"
 # Whether a path holds a drawn object (Meshcat's scene_tree.find makes an empty node otherwise).
@@ -348,7 +359,11 @@ def test_the_demo_replay_opens_at_a_simulated_time_and_its_hud_says_what_runs(
     assert hud[1].startswith(f"step {step}: objects "), hud
     assert hud[2].startswith(f"replan at {replan['t']:.1f} s: {replan['status']}"), hud
     assert hud[3] == f"delivered {delivered}/10", hud
-    assert hud[4].startswith("arm 1 (right): ") and hud[5].startswith("arm 2 (left): "), hud
+    assert hud[4:6] == [holding(summary, 1, 5.5), holding(summary, 2, 5.5)], hud
+    for h in summary["holds"][:4]:  # and while an arm holds an object
+        t = (h["from"] + h["to"]) / 2
+        hud = chromium.execute_script(SEEK_JS, t).splitlines()
+        assert hud[4:6] == [holding(summary, 1, t), holding(summary, 2, t)], hud
 
     end = summary["sim_time_s"]
     hud = chromium.execute_script(SEEK_JS, end).splitlines()

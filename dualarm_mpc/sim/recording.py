@@ -188,7 +188,6 @@ class Notes:
 
     def __init__(self, meshcat: Meshcat, scenario: Scenario, dual) -> None:
         self.meshcat, self.scenario, self.dual = meshcat, scenario, dual
-        self.holds: list[list] = []  # [t, arm, object index or -1] at each change of a grasp
         self.releases: list[list] = []  # [t, arm, object index, speed in m/s]
         self._next: float | None = None  # when to look next; None: not started
         self._last = 0.0  # the last look's time
@@ -283,7 +282,6 @@ class Notes:
             if j == self._held[i]:
                 continue
             was, self._held[i] = self._held[i], j
-            self.holds.append([round(t, 3), i, j])
             if was >= 0:
                 self._released(t, i, was, s)
         for j in list(self._slides):
@@ -336,9 +334,13 @@ class Notes:
                 plan = (r["cost"], r["t"])
             rows.append([r["t"], step, r["status"], r["cost"], *plan, objects])
         events = sorted([e["time"], _event_text(e, names)] for e in summary.events)
+        # [t, arm, object or -1 (free)] at each change, a hold ended before one begun at once
+        holds = sorted([t, h["arm"] - 1, j] for h in summary.holds
+                       for t, j in ((h["from"], names.index(h["object"])), (h["to"], -1))
+                       if j >= 0 or t < summary.sim_time_s)
         data = {"n": len(names), "goals": [o["goal"] for o in summary.objects], "replans": rows,
                 "delivered": sorted(d for d in summary.delivered_time_s if d is not None),
-                "holds": self.holds, "releases": self.releases, "thrown": THROWN_SPEED,
+                "holds": holds, "releases": self.releases, "thrown": THROWN_SPEED,
                 "arms": list(ARM_NAMES), "events": events}
         return HUD.replace("__RUN__", json.dumps(data).replace("</", "<\\/"))
 
