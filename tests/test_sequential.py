@@ -163,8 +163,10 @@ def test_what_a_step_says_of_its_shorter_horizons_holds(horizons: str) -> None:
     res, _ = sequential.plan_step(problem)
     assert (res.passed_over is not None) == (horizons == "witness")
     assert res.minimal == (res.passed_over is None and not res.undecided)
-    if res.witness_cost is not None:  # T₁ searched from the witness with the budget left
-        assert res.horizon == res.witness_horizon and res.cost < res.witness_cost
+    if res.witness_cost is not None:  # T₁ searched from the witness with the budget left:
+        # never worse than the witness (how much better within a wall-time budget depends on
+        # the machine's load: measured equal once with the suite beside other work)
+        assert res.horizon == res.witness_horizon and res.cost <= res.witness_cost + 1e-9
     assert all(T < res.horizon for T in res.undecided)
     for T in range(sequential.predict_horizon(problem), res.horizon):
         mono = solve_step(problem, T)
