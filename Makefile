@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 OUT ?= out
 
-.PHONY: demo test test-fast bench lint docs clean
+.PHONY: demo figures test test-fast bench lint docs clean
 
 # What each target needs, installed once per change of pyproject.toml (README.md, "What each
 # extra installs"): `make demo` the package alone; `make docs` it and Sphinx; the tests every
@@ -33,6 +33,12 @@ demo: $(VENV)/.installed-base
 		--set 'object_clearance: 0.01' --out $(OUT)/plan.json --plot $(OUT)/plan.png
 	$(BIN)/dualarm-mpc simulate table1_vc --rule 2 --html $(OUT)/replay.html \
 		--summary $(OUT)/summary.json --plot $(OUT)/run.png
+
+# Every image of README.md and docs/ made anew from `make demo`'s two commands (read from the
+# recipe above): plan.png, run.png, and replay.html in headless Chromium at t = 25 s, into
+# docs/img/ with figures.json, the data each was made from (tests/test_figures.py checks it).
+figures: $(VENV)/.installed-test
+	$(BIN)/python bench/figures.py
 
 # -n auto: a pytest-xdist worker per core; much of the suite (Drake's physics, the controller's
 # Python systems) runs on one core, so two workers take 0.6 of the serial time on 2 cores.
