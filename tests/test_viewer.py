@@ -12,7 +12,6 @@ from __future__ import annotations
 import io
 import json
 import re
-import shlex
 import shutil
 import threading
 import time
@@ -22,6 +21,8 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
+from demo import demo_commands
+from figures import VIEW, start_chromium
 from scenes import ONE_ON_THE_ROBOT, yaml_text
 
 try:
@@ -43,12 +44,8 @@ RUN_S = 3.0
 MAX_REPLAY_BYTES = 8e6  # issue 39: the `make demo` replay (a 40 s run) opens at once
 
 CHROMIUM, CHROMEDRIVER = shutil.which("chromium"), shutil.which("chromedriver")
-# Chromium's own traffic (updates, sync, QUIC probes) off, so any request is the page's; WebGL
-# in software (no GPU here), opted in.
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--enable-unsafe-swiftshader")
-VIEW = {"width": 1280, "height": 800, "deviceScaleFactor": 1, "mobile": False}
+# The view (1280×800) and Chromium's flags are `make figures`' (bench/figures.py), which takes
+# the README's replay screenshot the same way.
 NETWORK = ("http", "https", "ws", "wss", "ftp")
 # In the page, three.js of Meshcat's viewer (y up): the table top's corners in normalized device
 # coordinates (the view is [-1, 1]²), and the pose of the right arm's second link at two times.
@@ -105,14 +102,7 @@ def chromium(tmp_path_factory):
                     "(.ci/run does)")
     if webdriver is None:
         pytest.skip("selenium is not installed: pip install -e '.[test]'")
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in (*FLAGS, f"--user-data-dir={tmp_path_factory.mktemp('chromium')}"):
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL", "performance": "ALL"})
-    driver = webdriver.Chrome(options=options,
-                              service=webdriver.ChromeService(executable_path=CHROMEDRIVER))
-    driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", VIEW)
+    driver = start_chromium(tmp_path_factory.mktemp("chromium"))
     yield driver
     driver.quit()
 
@@ -284,10 +274,8 @@ def test_record_contacts_adds_the_contact_forces_and_the_hidden_geometry(
 
 def demo_command(out: Path) -> list[str]:
     """`make demo`'s ``simulate`` command line, read from the Makefile, writing into ``out``."""
-    makefile = (Path(__file__).parents[1] / "Makefile").read_text().replace("\\\n", " ")
-    recipe = re.search(r"^demo:.*\n((?:\t.*\n)+)", makefile, re.M).group(1)
-    (line,) = [cmd for cmd in recipe.splitlines() if "dualarm-mpc simulate" in cmd]
-    return [arg.replace("$(OUT)", str(out)) for arg in shlex.split(line.split("dualarm-mpc")[1])]
+    (args,) = [c[1:] for c in demo_commands(out) if c[1] == "simulate"]
+    return args
 
 
 @pytest.fixture(scope="module")
