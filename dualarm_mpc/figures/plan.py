@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 from collections import defaultdict
 from pathlib import Path
 
@@ -16,8 +15,8 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 
-from dualarm_mpc.base import outputs  # noqa: E402
 from dualarm_mpc.base.palette import ARM_COLOURS, goal_colour  # noqa: E402
+from dualarm_mpc.figures.output import write_figure  # noqa: E402
 from dualarm_mpc.model.plan import Plan  # noqa: E402
 
 ARM_LABELS = ("arm 1 (right)", "arm 2 (left)")
@@ -28,11 +27,7 @@ THROW_SPEED = 1e-3  # m/s: an object let go faster than this is thrown (it slide
 def plot_plan(plan: Plan, path: str | Path, title: str = "") -> None:
     """Write :func:`plan_figure` in the format the suffix of ``path`` names (PNG, PDF, SVG, ...),
     whole or not at all."""
-    fig = plan_figure(plan, title)
-    image = io.BytesIO()
-    fig.savefig(image, format=Path(path).suffix.lstrip(".").lower(), dpi=100)
-    plt.close(fig)
-    outputs.write(path, image.getvalue())
+    write_figure(plan_figure(plan, title), path)
 
 
 def plan_figure(plan: Plan, title: str = "") -> Figure:

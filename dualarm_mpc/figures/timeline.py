@@ -4,7 +4,6 @@ and the arms' clearance."""
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 
 import matplotlib
@@ -15,8 +14,8 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
-from dualarm_mpc.base import outputs  # noqa: E402
 from dualarm_mpc.base.palette import ARM_COLOURS, goal_colour  # noqa: E402
+from dualarm_mpc.figures.output import write_figure  # noqa: E402
 
 ARM_LABELS = ("arm 1 (right)", "arm 2 (left)")
 # A replan's mark by its status: a new plan (greens), the plan in force kept (greys), waiting
@@ -43,11 +42,7 @@ ROWS = {"arm 1 (right)": 4, "arm 2 (left)": 3, "delivered": 2, "replans": 1}
 def plot_timeline(summary: dict, path: str | Path, title: str = "") -> None:
     """Write :func:`timeline_figure` in the format the suffix of ``path`` names (PNG, PDF,
     SVG, ...), whole or not at all."""
-    fig = timeline_figure(summary, title)
-    image = io.BytesIO()
-    fig.savefig(image, format=Path(path).suffix.lstrip(".").lower(), dpi=100)
-    plt.close(fig)
-    outputs.write(path, image.getvalue())
+    write_figure(timeline_figure(summary, title), path)
 
 
 def timeline_figure(summary: dict, title: str = "") -> Figure:
