@@ -74,6 +74,8 @@ def test_load_scenario_takes_the_robot_set_up_and_overrides_in_order(tmp_path) -
     assert (s.task.delivery, s.solver.time_limit_s, s.task.goal_slots) == ("reach", 4.0, True)
     with pytest.raises(dm.ScenarioError, match="max_speed"):
         dm.load_scenario(path, ["max_speed: -1"])
+    with pytest.raises(dm.ScenarioError, match="override 2: expected a mapping or YAML text"):
+        dm.load_scenario(path, ["rule: 2", 5])
 
 
 def test_plan_returns_a_verified_plan_whose_objects_end_in_their_goals(tmp_path) -> None:

@@ -745,6 +745,9 @@ def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict
     for k, extra in enumerate(texts):
         if isinstance(extra, str):
             extra = parse_override(extra, f"override {k + 1} ({extra!r})")
+        elif not isinstance(extra, dict):
+            raise ScenarioError(f"override {k + 1}: expected a mapping or YAML text, got "
+                                f"{_show(extra)}")
         merge_overrides(merged, _paths(extra))
     return apply_overrides(base, merged)
 
