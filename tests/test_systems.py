@@ -133,7 +133,7 @@ def test_station_reads_the_model_and_places_objects():
     scenario = load_scenario("table1_vc")
     station = AddStation(DiagramBuilder(), scenario)
     np.testing.assert_allclose(station.arm_bases, [[0.3, -0.8], [-0.3, -0.8]])
-    assert station.link_lengths == pytest.approx((0.9, 1.3))
+    assert station.scara.link_lengths == pytest.approx((0.9, 1.3))
     assert [b.name() for b in station.objects] == [o.name for o in scenario.task.objects]
     assert station.plant.time_step() == pytest.approx(2e-3)
     context = station.plant.CreateDefaultContext()
@@ -165,10 +165,10 @@ def test_ik_round_trip_through_the_plant_over_the_workspace():
     for i, hand in enumerate(station.hands):
         base = station.arm_bases[i]
         for p in grid:
-            angles = scara_ik(p, base, station.link_lengths, station.elbow_signs[i])
-            assert np.sign(angles[1]) in (0, station.elbow_signs[i])
-            np.testing.assert_allclose(scara_fk(angles, base, station.link_lengths), p, atol=1e-9)
-            q[list(station.position_indices[3 * i : 3 * i + 3])] = [*angles, 0.07]
+            angles = scara_ik(p, base, station.scara.link_lengths, station.scara.elbow_signs[i])
+            assert np.sign(angles[1]) in (0, station.scara.elbow_signs[i])
+            np.testing.assert_allclose(scara_fk(angles, base, station.scara.link_lengths), p, atol=1e-9)
+            q[list(station.scara.position_indices[3 * i : 3 * i + 3])] = [*angles, 0.07]
             plant.SetPositions(context, q)
             x = plant.EvalBodyPoseInWorld(context, hand).translation()
             np.testing.assert_allclose(x, [*p, 0.07], atol=1e-9)
@@ -179,7 +179,7 @@ def test_ik_round_trip_through_the_plant_over_the_workspace():
 
 def arm_bodies(station: Station, arm: str) -> list:
     plant = station.plant
-    return [plant.get_body(b) for b in plant.GetBodyIndices(station.robot)
+    return [plant.get_body(b) for b in plant.GetBodyIndices(station.robots[0])
             if plant.get_body(b).name().startswith(f"{arm}_")]
 
 
@@ -221,9 +221,9 @@ class ArmPoser:
     def pose(self, context, hands, heights=(TRAVEL_HEIGHT, TRAVEL_HEIGHT)) -> None:
         station = self.station
         pc = station.plant.GetMyMutableContextFromRoot(context)
-        for i, (shoulder, elbow, z) in enumerate(station.arm_joints):
-            q1, q2 = scara_ik(hands[i], station.arm_bases[i], station.link_lengths,
-                              station.elbow_signs[i])
+        for i, (shoulder, elbow, z) in enumerate(station.scara.arm_joints):
+            q1, q2 = scara_ik(hands[i], station.arm_bases[i], station.scara.link_lengths,
+                              station.scara.elbow_signs[i])
             shoulder.set_angle(pc, q1)
             elbow.set_angle(pc, q2)
             z.set_translation(pc, heights[i])

@@ -234,9 +234,22 @@ class Robot:
                                    metadata=COORDINATE)  # hand range
     hand_start: list[list[float]] = field(default_factory=lambda: [[0.1, 0.0], [-0.1, 0.0]],
                                           metadata=COORDINATE)
-    # In front of the hand range, not at Table I's (±0.3, 0.3): see docs/drake.md
+    # In front of the hand range, not at Table I's (±0.3, 0.3): see docs/drake.md. Each
+    # [x, y], with an optional z and yaw (radians) for a robot model of one arm.
     arm_bases: list[list[float]] = field(default_factory=lambda: [[0.3, -0.8], [-0.3, -0.8]],
                                          metadata=COORDINATE)
+    # The robot that carries the hands (docs/robots.md): a URDF or SDF file (a path, relative to
+    # the scenario file, or a package:// URL); None: our SCARA, models/dual_scara.sdf.
+    robot_model: str | None = None
+    # The frame that holds objects: one (a one-arm model, loaded at each of arm_bases) or two
+    # (one model with both arms); arm 1 = right.
+    hand_frames: list[str] = field(default_factory=list)
+    # [x, y, z, yaw] of a two-arm model; None: at the origin.
+    robot_base: list[float] | None = field(default=None, metadata=COORDINATE)
+    # The grasp box of eq. (11) shrunk to this half size (m) in the plan and the gripper: a
+    # suction cup or gripper holds a box under the tool, not h_j beside it. None: the paper's
+    # grasp box (``simulate`` sets it, docs/scenarios.md, "The on-robot overrides").
+    grasp_tolerance: float | None = field(default=None, metadata=GRASP_HALF_SIZE)
     # |v| and |u| per component; every big-M derives from them, so that their ratio to the
     # table's size stays one a MILP solver's tolerances resolve (1 mm/s is no motion here)
     max_speed: float = field(default=0.2, metadata=_in(1e-3, 10.0))
@@ -248,8 +261,13 @@ class Robot:
         for name, points in (("hand_start", self.hand_start), ("arm_bases", self.arm_bases)):
             if len(points) != 2:
                 raise ScenarioError(f"{name}: expected two points (arm 1 = right, arm 2 = left)")
-            for i, p in enumerate(points):
-                _point(p, f"{name}[{i}]")
+        for i, p in enumerate(self.hand_start):
+            _point(p, f"hand_start[{i}]")
+        for i, p in enumerate(self.arm_bases):
+            if not 2 <= len(p) <= (2 if self.robot_model is None else 4):
+                raise ScenarioError(f"arm_bases[{i}]: expected [x, y]" + (
+                    "" if self.robot_model is None else ", [x, y, z] or [x, y, z, yaw]") +
+                    f", got {p!r}")
         xmin, xmax, ymin, ymax = self.workspace
         for i, (x, y) in enumerate(self.hand_start):
             if not (xmin <= x <= xmax and ymin <= y <= ymax):
@@ -260,7 +278,28 @@ class Robot:
             raise ScenarioError(
                 f"hand_start: eq. (16) needs x_arm2 + hand_gap <= x_arm1 (arm 1 = right), got "
                 f"x_arm1 = {x1}, x_arm2 = {x2}, hand_gap = {self.hand_gap}")
-        self._check_arms()
+        if self.robot_model is None:
+            if self.hand_frames or self.robot_base is not None:
+                raise ScenarioError("hand_frames, robot_base: given without robot_model (the "
+                                    "SCARA's hands are its own)")
+            self._check_arms()
+        else:
+            self._check_model()
+
+    def _check_model(self) -> None:
+        """The keys of a robot model; whether its arms reach is the station's to check
+        (:func:`dualarm_mpc.sim.reach.check_reach`), with the model loaded."""
+        if not self.robot_model.strip():
+            raise ScenarioError("robot_model: an empty name (a URDF or SDF path or URL)")
+        if not 1 <= len(self.hand_frames) <= 2 or not all(
+                isinstance(f, str) and f for f in self.hand_frames):
+            raise ScenarioError(f"hand_frames: expected one frame name (a one-arm model) or two "
+                                f"(arm 1 = right, arm 2 = left), got {self.hand_frames!r}")
+        if len(self.hand_frames) == 1 and self.robot_base is not None:
+            raise ScenarioError("robot_base: places a two-arm model; with one hand frame each "
+                                "arm stands at its arm_bases entry")
+        if self.robot_base is not None and len(self.robot_base) != 4:
+            raise ScenarioError(f"robot_base: expected [x, y, z, yaw], got {self.robot_base!r}")
 
     def _check_arms(self) -> None:
         """The robot model's arms, and a hand range they reach everywhere (the simulation's
@@ -462,6 +501,10 @@ YAML_FIELDS = {
     "max_speed": "robot.max_speed",
     "max_force": "robot.max_force",
     "hand_gap": "robot.hand_gap",
+    "robot_model": "robot.robot_model",
+    "hand_frames": "robot.hand_frames",
+    "robot_base": "robot.robot_base",
+    "grasp_tolerance": "robot.grasp_tolerance",
     "table_friction": "table.friction",
     "slide_time_constant": "table.slide_time_constant",
     "object_size": "table.object_size",
@@ -706,17 +749,23 @@ def scenario_path(name_or_path: str) -> Path:
 # slots one object in ten was knocked short of its goal, beyond reach); and objects have extent:
 # one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C3); without,
 # the boxes of `make demo` touched in 4 pairs, a dragged one shoving another 8 cm). 1 cm is what
-# the slots leave between neighbours (2·goal_margin − object_size).
-ON_ROBOT = {"delivery": "rest", "goal_margin": 0.03, "goal_slots": True, "object_clearance": 0.01}
+# the slots leave between neighbours (2·goal_margin − object_size). The hand holds a box with its
+# tool on the top face, so the grasp box shrinks to half the box (``grasp_tolerance``). Lengths
+# are in object sizes, the 5 cm box of Table II's scenes: a robot of smaller reach carries the
+# same scene scaled down (docs/robots.md).
+ON_ROBOT = {"delivery": "rest", "goal_slots": True}
+ON_ROBOT_SIZES = {"goal_margin": 0.6, "object_clearance": 0.2, "grasp_tolerance": 0.5}
 
 
 def on_robot_overrides(scenario: Scenario) -> dict:
     """The overrides that make ``scenario`` fit for the robot (what ``load_scenario(...,
-    on_robot=True)`` applies): ``ON_ROBOT``, and random objects drawn at least a box apart (plus
-    2 cm), since physical boxes cannot overlap."""
-    extra = {}
+    on_robot=True)`` applies): ``ON_ROBOT``, ``ON_ROBOT_SIZES`` times the object size, and
+    random objects drawn at least a box apart (plus 40 % of one), since physical boxes cannot
+    overlap."""
+    size = scenario.table.object_size
+    extra = {key: round(factor * size, 9) for key, factor in ON_ROBOT_SIZES.items()}
     if scenario.task.random_objects is not None:
-        extra["random_objects"] = {"min_separation": scenario.table.object_size + 0.02}
+        extra["random_objects"] = {"min_separation": round(1.4 * size, 9)}
     return {**ON_ROBOT, **extra}
 
 
@@ -736,6 +785,9 @@ def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict
     except OSError as err:
         raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
     data = _yaml(text, str(path))
+    model = data.get("robot_model")
+    if isinstance(model, str) and model and "://" not in model:  # relative to the file
+        data["robot_model"] = str((path.parent / model).resolve())
     _one_source_of_objects(data, drawn=False, listed=0)
     base = _build_scenario(data)
     if not on_robot and (overrides is None or isinstance(overrides, dict | str)):
@@ -767,6 +819,10 @@ def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenari
         # the objects follow from (random_objects, seed); with no goals, validate says so
         task.random_objects.validate()
         task.objects = random_objects(task.random_objects, list(task.goals), task.seed)
+    tolerance = scenario.robot.grasp_tolerance
+    if tolerance is not None:
+        for o in task.objects:
+            o.grasp_half_size = min(o.grasp_half_size, tolerance)
     scenario.validate()
     return scenario
 

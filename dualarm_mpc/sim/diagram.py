@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydrake.geometry import Meshcat
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
+from pydrake.systems.primitives import Multiplexer
 
 from dualarm_mpc.model.mld import REST_SPEED, delivered_objects
 from dualarm_mpc.model.scenario import Scenario
@@ -67,13 +68,19 @@ class DualArm:
 
 def _export(builder: DiagramBuilder, station: Station, stack: ControlStack,
             planner: MpcPlanner) -> None:
-    """The Diagram's output ports, each under its system's port name: the measured state and its
-    named parts (StateEstimator), the robot's joint state ``robot_state`` [q (6), v (6)] (the
-    plant's, of the robot model instance), and the plan in force as itself, as Drake
-    trajectories, and the last replan (MpcPlanner)."""
+    """The Diagram's output ports, each under its system's port name: the measured state and
+    its named parts (StateEstimator), the robot's joint state ``robot_state`` (the plant's
+    [q; v] of the robot model instance, or of each arm's, arm 1 first), and the plan in force
+    as itself, as Drake trajectories, and the last replan (MpcPlanner)."""
     for name in ("measured_state", *StateEstimator.PARTS):
         builder.ExportOutput(stack.estimator.GetOutputPort(name), name)
-    builder.ExportOutput(station.plant.get_state_output_port(station.robot), "robot_state")
+    states = [station.plant.get_state_output_port(robot) for robot in station.robots]
+    if len(states) > 1:  # a one-arm model loaded per arm: [x_arm1; x_arm2]
+        mux = builder.AddNamedSystem("robot_state", Multiplexer([p.size() for p in states]))
+        for k, port in enumerate(states):
+            builder.Connect(port, mux.get_input_port(k))
+        states = [mux.get_output_port(0)]
+    builder.ExportOutput(states[0], "robot_state")
     for name in ("plan", "replan", "hand_trajectory", "object_trajectory", "grasp_schedule"):
         builder.ExportOutput(planner.GetOutputPort(name), name)
 

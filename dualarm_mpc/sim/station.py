@@ -52,7 +52,9 @@ from pydrake.systems.framework import DiagramBuilder
 from dualarm_mpc.base.palette import TABLE_COLOUR, goal_colour
 from dualarm_mpc.model.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
 from dualarm_mpc.sim.resources import ROBOT_URL, package_map
+from dualarm_mpc.sim.robot import ARM_SIDES, AddArms, Arm
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
+from dualarm_mpc.systems.differential_ik import DifferentialIkController
 from dualarm_mpc.systems.gripper import Gripper
 from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT, Interpolator, Limits
 from dualarm_mpc.systems.state_estimator import StateEstimator
@@ -83,8 +85,6 @@ def quiet_drake() -> None:
 quiet_drake()
 
 
-# The arms' names in the robot model: arm 1 (index 0) is the right arm, arm 2 (index 1) the left.
-ARM_SIDES = ("right", "left")
 JOINTS = ("shoulder", "elbow", "z")  # canonical joint c = 3·i + m of arm i
 OBJECT_MASS = 0.1  # kg
 OBJECT_MODULUS = 1e7  # Pa, compliant hydroelastic modulus of the objects
@@ -94,22 +94,30 @@ SUPPORT_RADIUS = 0.002
 
 
 @dataclass(frozen=True)
-class Station:
-    """What :func:`AddStation` made. Index conventions: arm i = 0 right, 1 left; object j in
-    scenario order."""
+class Scara:
+    """The SCARA of ``models/dual_scara.sdf``, as its closed-form controller needs it."""
 
-    plant: MultibodyPlant
-    scene_graph: SceneGraph
-    robot: ModelInstanceIndex
-    object_instances: tuple[ModelInstanceIndex, ...]
-    hands: tuple[RigidBody, RigidBody]  # end-effector body per arm
-    objects: tuple[RigidBody, ...]
     arm_joints: tuple[tuple[Joint, Joint, Joint], ...]  # (shoulder, elbow, z) per arm
-    arm_bases: np.ndarray  # (2, 2), read from the model
     link_lengths: tuple[float, float]  # read from the model
     elbow_signs: tuple[int, int]
     position_indices: tuple[int, ...]  # canonical joint c → index in the plant's q
     actuator_order: tuple[int, ...]  # desired-state slot a → canonical joint c
+
+
+@dataclass(frozen=True)
+class Station:
+    """What :func:`AddStation` made. Index conventions: arm i = 0 right, 1 left; object j in
+    scenario order. The arms are our SCARA (``scara``) or a scenario's robot model (``arms``)."""
+
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    robots: tuple[ModelInstanceIndex, ...]  # the robot's model instances (one, or one per arm)
+    object_instances: tuple[ModelInstanceIndex, ...]
+    hands: tuple[RigidBody, RigidBody]  # per arm, the body whose origin holds objects
+    objects: tuple[RigidBody, ...]
+    arm_bases: np.ndarray  # (2, 2): where each arm stands on the table, read from the model
+    scara: Scara | None
+    arms: tuple[Arm, Arm] | None
     grasp_half_sizes: tuple[float, ...]
     object_size: float
     grasp_height: float  # hand height when it holds an object: its tip on the object's top face
@@ -234,24 +242,24 @@ def _arm_geometry(plant: MultibodyPlant, joints) -> tuple[np.ndarray, tuple[floa
     return np.array(bases), (float(lengths[0][0]), float(lengths[0][1]))
 
 
-def _arm_pairs(plant: MultibodyPlant, robot: ModelInstanceIndex,
+def _arm_pairs(plant: MultibodyPlant, arms: tuple[list[RigidBody], list[RigidBody]],
                scene_graph: SceneGraph) -> tuple[tuple[GeometryId, GeometryId], ...]:
-    """Filters out contact between the arms and everything else (table, objects); returns
-    the pairs of collision geometries, one of each arm, left unfiltered (the two columns, both
-    welded to the world, are not)."""
-    arms = tuple(
-        tuple(g for body in plant.GetBodyIndices(robot)
-              if plant.get_body(body).name().startswith(f"{arm}_")
-              for g in plant.GetCollisionGeometriesForBody(plant.get_body(body)))
-        for arm in ARM_SIDES
-    )
-    robot_ids = [g for arm in arms for g in arm]
+    """Filters out contact between the arms and everything else (table, objects) and within
+    each arm; returns the pairs of collision geometries, one of each arm, left unfiltered (the
+    SCARA's two columns, both welded to the world, are not)."""
+    geometries = tuple([g for body in bodies for g in plant.GetCollisionGeometriesForBody(body)]
+                       for bodies in arms)
+    robot_ids = [g for arm in geometries for g in arm]
     rest = [g for g in scene_graph.model_inspector().GetAllGeometryIds(Role.kProximity)
             if g not in robot_ids]
-    scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(robot_ids), GeometrySet(rest)))
+    declaration = CollisionFilterDeclaration().ExcludeBetween(GeometrySet(robot_ids),
+                                                              GeometrySet(rest))
+    for arm in geometries:
+        declaration.ExcludeWithin(GeometrySet(arm))
+    scene_graph.collision_filter_manager().Apply(declaration)
     inspector = scene_graph.model_inspector()
-    return tuple((a, b) for a in arms[0] for b in arms[1] if not inspector.CollisionFiltered(a, b))
+    return tuple((a, b) for a in geometries[0] for b in geometries[1]
+                 if not inspector.CollisionFiltered(a, b))
 
 
 def _tip_radius(plant: MultibodyPlant, hand: RigidBody, scene_graph: SceneGraph) -> float:
@@ -266,7 +274,8 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
     """Adds the plant and scene graph of ``scenario`` to ``builder``; returns what was made.
 
     The arms start at rest with the hands above ``scenario.robot.hand_start`` at the travel height.
-    Raises ValueError if the scenario's ``arm_bases`` differ from the model's.
+    Raises ValueError if the scenario's ``arm_bases`` differ from the SCARA model's, and
+    :class:`~dualarm_mpc.sim.robot.RobotError` for a robot model that cannot carry the hands.
     """
     if time_step <= 0:
         raise ValueError(f"time_step must be positive, got {time_step}")
@@ -276,20 +285,73 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         contact_model="hydroelastic_with_fallback",
     )
     plant, scene_graph = AddMultibodyPlant(config, builder)
-    parser = Parser(plant)
-    parser.package_map().AddMap(package_map())
-    (robot,) = parser.AddModels(url=ROBOT_URL)
     table = _add_table_and_goals(plant, scenario)
     object_instances, objects, boxes = _add_objects(plant, scenario)
     scene_graph.collision_filter_manager().Apply(  # the objects stand on their spheres
         CollisionFilterDeclaration().ExcludeBetween(GeometrySet(table), GeometrySet(list(boxes))))
+    if scenario.robot.robot_model is None:
+        robots, hands, scara = _add_scara(plant)
+        arms = None
+        arm_bodies = tuple([plant.get_body(b) for b in plant.GetBodyIndices(robots[0])
+                            if plant.get_body(b).name().startswith(f"{side}_")]
+                           for side in ARM_SIDES)
+        hand_bodies = tuple([hand] for hand in hands)
+    else:
+        arms = AddArms(plant, scenario)
+        robots = tuple(dict.fromkeys(arm.instance for arm in arms))
+        hands, scara = tuple(arm.hand for arm in arms), None
+        arm_bodies = tuple(list(arm.bodies) for arm in arms)
+        hand_bodies = tuple(list(arm.hand_bodies) for arm in arms)
+    plant.Finalize()
 
+    if scara is not None:
+        scara, bases = _place_scara(plant, scara, scenario)
+        grasp_height = scenario.table.object_size + _tip_radius(plant, hands[0], scene_graph)
+    else:
+        _place_arms(plant, arms)
+        bases = np.array([arm.base[:2] for arm in arms])
+        grasp_height = scenario.table.object_size  # the hand frame on the box's top face
+    return Station(
+        plant=plant,
+        scene_graph=scene_graph,
+        robots=robots,
+        object_instances=object_instances,
+        hands=hands,
+        objects=objects,
+        arm_bases=bases,
+        scara=scara,
+        arms=arms,
+        grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.task.objects),
+        object_size=scenario.table.object_size,
+        grasp_height=grasp_height,
+        travel_height=TRAVEL_HEIGHT,
+        hand_range=tuple(scenario.robot.workspace),
+        hand_gap=scenario.robot.hand_gap,
+        time_step=time_step,
+        slide_time_constant=scenario.table.slide_time_constant,
+        table=table_extent(scenario),
+        arm_pairs=_arm_pairs(plant, arm_bodies, scene_graph),
+        hand_object_pairs=tuple((g, box) for bodies in hand_bodies for body in bodies
+                                for g in plant.GetCollisionGeometriesForBody(body)
+                                for box in boxes),
+    )
+
+
+def _add_scara(plant: MultibodyPlant):
+    """Our SCARA (``models/dual_scara.sdf``): its instance, hands and joints, before Finalize."""
+    parser = Parser(plant)
+    parser.package_map().AddMap(package_map())
+    (robot,) = parser.AddModels(url=ROBOT_URL)
     joints = tuple(
         tuple(plant.GetJointByName(f"{arm}_{name}", robot) for name in JOINTS) for arm in ARM_SIDES
     )
     hands = tuple(plant.GetBodyByName(f"{arm}_hand", robot) for arm in ARM_SIDES)
-    plant.Finalize()
+    return (robot,), hands, joints
 
+
+def _place_scara(plant: MultibodyPlant, joints, scenario: Scenario) -> tuple[Scara, np.ndarray]:
+    """The SCARA's geometry read from the finalized model and checked against the scenario's;
+    its default posture: the hands above ``hand_start`` at the travel height."""
     bases, lengths = _arm_geometry(plant, joints)
     if not np.allclose(bases, np.asarray(scenario.robot.arm_bases, float), atol=1e-9):
         raise ValueError(
@@ -300,48 +362,33 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
             np.allclose(lengths, ROBOT_LINKS, atol=1e-9)):
         raise ValueError(f"model: bases {bases.tolist()} and links {lengths} differ from "
                          "scenario.ROBOT_ARM_BASES and ROBOT_LINKS, which validate scenarios")
-    travel = TRAVEL_HEIGHT
     for i, (shoulder, elbow, z) in enumerate(joints):
         q1, q2 = scara_ik(scenario.robot.hand_start[i], bases[i], lengths, ELBOW_SIGNS[i])
         shoulder.set_default_angle(q1)
         elbow.set_default_angle(q2)
-        z.set_default_translation(travel)
-
+        z.set_default_translation(TRAVEL_HEIGHT)
     canonical = [joint for arm in joints for joint in arm]
-    position_indices = tuple(j.position_start() for j in canonical)
+    robot = canonical[0].model_instance()
     actuated = [
         plant.get_joint_actuator(a).joint().index() for a in plant.GetJointActuatorIndices(robot)
     ]
     actuator_order = tuple([j.index() for j in canonical].index(a) for a in actuated)
     if sorted(actuator_order) != list(range(6)):
         raise ValueError(f"model: expected the 6 arm joints to be actuated, got {actuated}")
-    return Station(
-        plant=plant,
-        scene_graph=scene_graph,
-        robot=robot,
-        object_instances=object_instances,
-        hands=hands,
-        objects=objects,
-        arm_joints=joints,
-        arm_bases=bases,
-        link_lengths=lengths,
-        elbow_signs=ELBOW_SIGNS,
-        position_indices=position_indices,
-        actuator_order=actuator_order,
-        grasp_half_sizes=tuple(o.grasp_half_size for o in scenario.task.objects),
-        object_size=scenario.table.object_size,
-        grasp_height=scenario.table.object_size + _tip_radius(plant, hands[0], scene_graph),
-        travel_height=travel,
-        hand_range=tuple(scenario.robot.workspace),
-        hand_gap=scenario.robot.hand_gap,
-        time_step=time_step,
-        slide_time_constant=scenario.table.slide_time_constant,
-        table=table_extent(scenario),
-        arm_pairs=_arm_pairs(plant, robot, scene_graph),
-        hand_object_pairs=tuple((g, box) for hand in hands
-                                for g in plant.GetCollisionGeometriesForBody(hand)
-                                for box in boxes),
-    )
+    return Scara(joints, lengths, ELBOW_SIGNS, tuple(j.position_start() for j in canonical),
+                 actuator_order), bases
+
+
+def _place_arms(plant: MultibodyPlant, arms: tuple[Arm, Arm]) -> None:
+    """A robot model's default posture: each joint at its arm's nominal posture (the hands
+    above ``hand_start`` at the travel height, tools down)."""
+    for arm in arms:
+        nominal, control = arm.control.nominal, arm.control.plant
+        for j in plant.GetJointIndices(arm.instance):
+            joint = plant.get_joint(j)
+            if joint.num_positions() == 1 and control.HasJointNamed(joint.name()):
+                k = control.GetJointByName(joint.name()).position_start()
+                joint.set_default_positions(nominal[k:k + 1])
 
 
 @dataclass(frozen=True)
@@ -351,7 +398,7 @@ class ControlStack:
     ``estimator.get_measured_state_output_port()``."""
 
     interpolator: Interpolator
-    controller: Controller
+    controller: Controller | DifferentialIkController
     gripper: Gripper
     estimator: StateEstimator
 
@@ -378,18 +425,7 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
         Interpolator(station.n_objects, station.grasp_height, station.travel_height,
                      limits=Limits(station.hand_range, station.hand_gap)),
     )
-    controller = builder.AddNamedSystem(
-        "controller",
-        Controller(
-            station.arm_bases,
-            station.link_lengths,
-            station.position_indices,
-            station.actuator_order,
-            plant.num_multibody_states(),
-            station.elbow_signs,
-            hand_gap=station.hand_gap,
-        ),
-    )
+    controller = _add_controller(builder, station)
     gripper = builder.AddNamedSystem(
         "gripper",
         Gripper(plant, station.hands, station.objects, station.grasp_half_sizes, station.time_step,
@@ -401,11 +437,6 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
     )
     builder.Connect(
         interpolator.get_hand_reference_output_port(), controller.get_hand_reference_input_port()
-    )
-    builder.Connect(plant.get_state_output_port(), controller.get_plant_state_input_port())
-    builder.Connect(
-        controller.get_desired_state_output_port(),
-        plant.get_desired_state_input_port(station.robot),
     )
     builder.Connect(
         interpolator.get_grasp_command_output_port(), gripper.get_grasp_command_input_port()
@@ -421,3 +452,36 @@ def AddControlStack(builder: DiagramBuilder, station: Station) -> ControlStack:
     )
     builder.Connect(gripper.get_grasp_output_port(), estimator.get_grasp_input_port())
     return ControlStack(interpolator, controller, gripper, estimator)
+
+
+def _add_controller(builder: DiagramBuilder, station: Station
+                    ) -> Controller | DifferentialIkController:
+    """The SCARA's closed-form controller, or the differential IK of a robot model, wired to
+    the plant's desired-state inputs (the hand reference is the caller's)."""
+    plant, scara = station.plant, station.scara
+    if scara is not None:
+        controller = builder.AddNamedSystem("controller", Controller(
+            station.arm_bases, scara.link_lengths, scara.position_indices, scara.actuator_order,
+            plant.num_multibody_states(), scara.elbow_signs, hand_gap=station.hand_gap))
+        builder.Connect(plant.get_state_output_port(), controller.get_plant_state_input_port())
+        builder.Connect(controller.get_desired_state_output_port(),
+                        plant.get_desired_state_input_port(station.robots[0]))
+        return controller
+    arms = station.arms
+    outputs = []
+    for instance in station.robots:
+        names = []
+        for a in plant.GetJointActuatorIndices(instance):
+            name = plant.get_joint_actuator(a).joint().name()
+            owner = [i for i, arm in enumerate(arms) if arm.instance == instance and
+                     name in {j.name() for j in arm.joints}]
+            names.append((owner[0] if owner else
+                          next(i for i, arm in enumerate(arms) if arm.instance == instance),
+                          name))
+        outputs.append(names)
+    controller = builder.AddNamedSystem("controller", DifferentialIkController(
+        [arm.control for arm in arms], outputs, station.time_step))
+    for k, instance in enumerate(station.robots):
+        builder.Connect(controller.GetOutputPort(f"desired_state_{k}"),
+                        plant.get_desired_state_input_port(instance))
+    return controller

@@ -1,0 +1,455 @@
+"""Robot: the two arms that carry the hands, from any URDF or SDF model (docs/robots.md).
+
+The planner moves two points on the table; which arms carry them is the scenario's
+``robot_model``, a URDF or SDF file by path or ``package://`` URL, with ``hand_frames`` naming the
+frame that holds objects: one (a one-arm model, loaded once per ``arm_bases`` entry, arm 1 = the
+right one) or two (one model with both arms, placed at ``robot_base``).
+
+Files as robot packages ship them are read as they are:
+
+* ``package://`` URLs resolve through Drake's ``PackageMap``: our own models, the package around
+  the model file (its ``package.xml``), ``ROS_PACKAGE_PATH``, and robot-description packages
+  installed by pip (``example-robot-data`` and the other ``cmeel`` packages install under
+  ``site-packages/cmeel.prefix/share/NAME``), found without the user setting a path.
+* A model that welds its base to a ``world`` link (Universal Robots', xArm's) loses that weld,
+  and its base is welded where the scenario puts it, the weld's offset kept: loaded twice, it
+  would otherwise weld both arms to one place.
+* STL and COLLADA meshes become OBJ (:mod:`dualarm_mpc.sim.meshes`).
+
+The re-written model is a file in the cache folder, parsed by Drake's own parser. Each arm also
+gets a *control model* of its own: the same file in a plant without geometry, what the
+differential inverse kinematics (:mod:`dualarm_mpc.systems.differential_ik`) works on.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import math
+import os
+import site
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.multibody.parsing import PackageMap, Parser
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import (
+    Frame,
+    Joint,
+    ModelInstanceIndex,
+    PdControllerGains,
+    RigidBody,
+    SpatialInertia,
+)
+from pydrake.solvers import Solve
+
+from dualarm_mpc.base.outputs import write
+from dualarm_mpc.model.scenario import Scenario, ScenarioError
+from dualarm_mpc.sim.meshes import MeshError, cache_dir, drake_mesh
+from dualarm_mpc.sim.resources import package_map
+from dualarm_mpc.systems.differential_ik import ArmModel
+from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT
+
+_log = logging.getLogger(__name__)
+
+ARM_SIDES = ("right", "left")  # arm 1 (index 0) is the right arm
+# The hands' tool axis: the hand frame's +z, the approach direction (REP 103's tool frames,
+# Franka's TCP); "tool down" is +z along the world's −z, within this angle.
+TOOL_AXIS = np.array([0.0, 0.0, 1.0])
+TOOL_TILT = 0.02  # rad
+# The joint-space controller: MultibodyPlant's PD on every joint, critically damped at this
+# natural frequency (rad/s) for the joint's own inertia, with gravity on the arms switched off
+# (an ideal gravity compensation, docs/robots.md).
+PD_FREQUENCY = 60.0
+
+
+class RobotError(ScenarioError):
+    """A robot model that cannot carry the hands: missing, unreadable, or lacking a frame."""
+
+
+@dataclass(frozen=True)
+class Arm:
+    """One arm in the station's plant."""
+
+    instance: ModelInstanceIndex
+    hand: RigidBody  # a massless body whose origin is the hand frame, welded to it
+    joints: tuple[Joint, ...]  # ``control.joints``' namesakes
+    bodies: tuple[RigidBody, ...]  # what collides with the other arm
+    hand_bodies: tuple[RigidBody, ...]  # the tool: bodies welded to the hand and beyond
+    base: np.ndarray  # (3,) where the arm's first joint stands
+    control: ArmModel
+
+
+def installed_packages() -> PackageMap:
+    """Robot-description packages pip installed (``cmeel.prefix/share/NAME`` with a
+    ``package.xml``), under their folder's name and their ``package.xml``'s, plus
+    ``ROS_PACKAGE_PATH`` and our own models."""
+    packages = package_map()
+    roots = [*site.getsitepackages(), site.getusersitepackages()]
+    for root in roots:
+        share = Path(root) / "cmeel.prefix" / "share"
+        for folder in sorted(share.glob("*/package.xml")):
+            for name in {folder.parent.name, _package_name(folder)} - {None}:
+                if not packages.Contains(name):
+                    packages.Add(name, str(folder.parent))
+    if os.environ.get("ROS_PACKAGE_PATH"):
+        packages.PopulateFromRosPackagePath()
+    return packages
+
+
+def _package_name(package_xml: Path) -> str | None:
+    try:
+        return ET.parse(package_xml).findtext("name")
+    except (ET.ParseError, OSError):
+        return None
+
+
+def model_path(url: str, packages: PackageMap) -> Path:
+    """The file of ``robot_model``: a path (made absolute by the scenario loader) or a
+    ``package://NAME/...`` URL. Adds the package around a plain file to ``packages``."""
+    if url.startswith("package://"):
+        name, _, rest = url[len("package://"):].partition("/")
+        if not packages.Contains(name):
+            raise RobotError(f"robot_model: no package {name!r} (known: "
+                             f"{', '.join(sorted(packages.GetPackageNames()))})")
+        path = Path(packages.GetPath(name)) / rest
+    else:
+        path = Path(url.removeprefix("file://"))
+        for parent in path.parents:  # the package the file belongs to, for its package:// URLs
+            if (parent / "package.xml").is_file():
+                name = _package_name(parent / "package.xml")
+                if name and not packages.Contains(name):
+                    packages.Add(name, str(parent))
+                break
+    if not path.is_file():
+        raise RobotError(f"robot_model: no file {path}")
+    if path.suffix.lower() not in (".urdf", ".sdf", ".xml"):
+        raise RobotError(f"robot_model: {path.name} is neither URDF nor SDF")
+    return path
+
+
+@dataclass(frozen=True)
+class PreparedModel:
+    """A model file re-written for Drake, and the weld to ``world`` it had."""
+
+    path: Path
+    root: str | None  # the link welded to world in the file, if any
+    weld: RigidTransform  # that weld's pose of the link in the world
+
+
+def prepare_model(source: Path, packages: PackageMap) -> PreparedModel:
+    """``source`` with its meshes made readable by Drake and its weld to ``world`` taken out,
+    written to the cache folder (once per content)."""
+    try:
+        tree = ET.parse(source)
+    except (ET.ParseError, OSError) as err:
+        raise RobotError(f"robot_model: {source} is not readable XML ({err})") from err
+    root = tree.getroot()
+    converted = 0
+    for element, attribute in _mesh_references(root):
+        uri = element.get(attribute) if attribute else (element.text or "").strip()
+        path = _mesh_file(uri, source, packages)
+        try:
+            target, fresh = drake_mesh(path)
+        except MeshError as err:
+            raise RobotError(f"robot_model: {err}") from err
+        converted += fresh
+        if target != path or not uri.startswith("package://"):
+            if attribute:
+                element.set(attribute, str(target))
+            else:
+                element.text = str(target)
+    if converted:
+        _log.warning("converted %d meshes of %s to OBJ in %s", converted, source.name,
+                     cache_dir() / "meshes")
+    link, weld = _unweld(root)
+    text = ET.tostring(root, encoding="unicode")
+    key = hashlib.sha256(f"{source.resolve()}|{text}".encode()).hexdigest()[:16]
+    target = cache_dir() / "models" / key / source.name
+    if not target.is_file():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        write(target, text)
+    return PreparedModel(target, link, weld)
+
+
+def _mesh_references(root: ET.Element):
+    """(element, attribute) of every mesh file: URDF's ``<mesh filename>``, SDF's
+    ``<mesh><uri>`` (attribute None: the text)."""
+    for mesh in root.iter("mesh"):
+        if mesh.get("filename"):
+            yield mesh, "filename"
+        uri = mesh.find("uri")
+        if uri is not None and (uri.text or "").strip():
+            yield uri, None
+
+
+def _mesh_file(uri: str, model: Path, packages: PackageMap) -> Path:
+    for scheme in ("package://", "model://"):
+        if uri.startswith(scheme):
+            name, _, rest = uri[len(scheme):].partition("/")
+            if not packages.Contains(name):
+                raise RobotError(f"robot_model: mesh {uri} is in package {name!r}, which is "
+                                 "not installed")
+            return Path(packages.GetPath(name)) / rest
+    path = Path(uri.removeprefix("file://"))
+    return path if path.is_absolute() else model.parent / path
+
+
+def _unweld(root: ET.Element) -> tuple[str | None, RigidTransform]:
+    """Removes the fixed joint from ``world`` (and URDF's ``world`` link); returns the link it
+    welded and that link's pose in the world."""
+    for parent in root.iter():
+        for joint in list(parent.findall("joint")):
+            if joint.get("type") != "fixed":
+                continue
+            urdf = joint.find("parent") is not None and joint.find("parent").get("link")
+            source = urdf or (joint.findtext("parent") or "").strip()
+            if source != "world":
+                continue
+            child = joint.find("child")
+            link = child.get("link") if urdf else (child.text or "").strip()
+            origin = joint.find("origin")
+            weld = RigidTransform()
+            if urdf and origin is not None:
+                xyz = [float(v) for v in origin.get("xyz", "0 0 0").split()]
+                rpy = [float(v) for v in origin.get("rpy", "0 0 0").split()]
+                weld = RigidTransform(RollPitchYaw(rpy), xyz)
+            parent.remove(joint)
+            for world in [w for w in parent.findall("link") if w.get("name") == "world"]:
+                parent.remove(world)
+            return link, weld
+    return None, RigidTransform()
+
+
+def _parse(plant: MultibodyPlant, model: PreparedModel, packages: PackageMap,
+           scope: str | None) -> ModelInstanceIndex:
+    parser = Parser(plant, scope) if scope else Parser(plant)
+    parser.package_map().AddMap(packages)
+    try:
+        instances = parser.AddModels(str(model.path))
+    except RuntimeError as err:
+        raise RobotError(f"robot_model: Drake cannot parse it: {str(err).splitlines()[0]}") \
+            from err
+    if len(instances) != 1:
+        raise RobotError(f"robot_model: expected one model in the file, got {len(instances)}")
+    return instances[0]
+
+
+def _root(plant: MultibodyPlant, instance: ModelInstanceIndex, model: PreparedModel) -> RigidBody:
+    """The body to weld: the link the file welded to world, else the one no joint moves."""
+    if model.root is not None:
+        return plant.GetBodyByName(model.root, instance)
+    children = {plant.get_joint(j).child_body().index() for j in plant.GetJointIndices(instance)}
+    roots = [plant.get_body(b) for b in plant.GetBodyIndices(instance) if b not in children]
+    if len(roots) != 1:
+        raise RobotError(f"robot_model: cannot tell its base among {[b.name() for b in roots]}")
+    return roots[0]
+
+
+def _pose(place: list[float]) -> RigidTransform:
+    """[x, y], [x, y, z] or [x, y, z, yaw] as a pose."""
+    x, y, z, yaw = [*place, 0.0, 0.0][:4]
+    return RigidTransform(RotationMatrix.MakeZRotation(yaw), [x, y, z])
+
+
+def _hand_frame(plant: MultibodyPlant, instance: ModelInstanceIndex, name: str,
+                key: str) -> Frame:
+    if plant.HasFrameNamed(name, instance):
+        return plant.GetFrameByName(name, instance)
+    frames = sorted({plant.get_frame(f).name() for f in plant.GetFrameIndices(instance)} -
+                    {""})
+    near = [f for f in frames if any(w in f.lower() for w in ("hand", "tcp", "tool", "ee"))]
+    raise RobotError(f"{key}: no frame {name!r} in the robot model (frames such as: "
+                     f"{', '.join((near or frames)[:8])})")
+
+
+def _chain(plant: MultibodyPlant, frame: Frame) -> list[Joint]:
+    """The joints from the world to ``frame``'s body that move (welds skipped), base first."""
+    parent_joint = {plant.get_joint(j).child_body().index(): plant.get_joint(j)
+                    for j in plant.GetJointIndices()}
+    chain, body = [], frame.body()
+    while body.index() in parent_joint:
+        joint = parent_joint[body.index()]
+        if joint.num_velocities() > 1:
+            raise RobotError(f"robot_model: joint {joint.name()} ({joint.type_name()}) on the "
+                             "way to the hand: only revolute and prismatic joints are driven")
+        if joint.num_velocities() == 1:
+            chain.append(joint)
+        body = joint.parent_body()
+    return chain[::-1]
+
+
+def _placements(scenario: Scenario) -> list[tuple[str | None, RigidTransform]]:
+    """(scope, pose of the model) per model loaded: one per arm, or one for both."""
+    robot = scenario.robot
+    if len(robot.hand_frames) == 1:
+        return [(side, _pose(base)) for side, base in zip(ARM_SIDES, robot.arm_bases,
+                                                           strict=True)]
+    return [(None, _pose(robot.robot_base or [0.0, 0.0, 0.0, 0.0]))]
+
+
+def _load(plant: MultibodyPlant, scenario: Scenario, model: PreparedModel,
+          packages: PackageMap) -> list[tuple[ModelInstanceIndex, Frame, int]]:
+    """The model(s) parsed and welded into ``plant``; per arm (instance, hand frame, index of
+    its model)."""
+    frames = scenario.robot.hand_frames
+    arms = []
+    for k, (scope, pose) in enumerate(_placements(scenario)):
+        instance = _parse(plant, model, packages, scope)
+        plant.WeldFrames(plant.world_frame(), _root(plant, instance, model).body_frame(),
+                         pose @ model.weld)
+        names = frames if len(frames) == 2 else [frames[0]]
+        for i, name in enumerate(names):
+            arm = k if len(frames) == 1 else i
+            arms.append((instance, _hand_frame(plant, instance, name, f"hand_frames[{arm}]"), k))
+    return arms
+
+
+def _control_models(scenario: Scenario, model: PreparedModel, packages: PackageMap
+                    ) -> list[ArmModel]:
+    """Each arm's control plant, its chain (joints shared by both arms' chains, a torso, are
+    held) and its nominal posture."""
+    plants = []
+    for _, pose in _placements(scenario):
+        plant = MultibodyPlant(0.0)
+        instance = _parse(plant, model, packages, None)
+        plant.WeldFrames(plant.world_frame(), _root(plant, instance, model).body_frame(),
+                         pose @ model.weld)
+        plant.Finalize()
+        plants.append(plant)
+    frames = scenario.robot.hand_frames
+    hands = [(plants[i], plants[i].GetFrameByName(frames[0]))
+             for i in range(2)] if len(frames) == 1 else \
+        [(plants[0], plants[0].GetFrameByName(name)) for name in frames]
+    chains = [_chain(plant, frame) for plant, frame in hands]
+    if len(frames) == 2:
+        shared = {j.name() for j in chains[0]} & {j.name() for j in chains[1]}
+        chains = [[j for j in chain if j.name() not in shared] for chain in chains]
+    postures = []
+    for i, ((plant, frame), chain) in enumerate(zip(hands, chains, strict=True)):
+        if not chain:
+            raise RobotError(f"hand_frames[{i}]: {frame.name()} is welded to the world: no "
+                             "joint moves it")
+        start = [*scenario.robot.hand_start[i], TRAVEL_HEIGHT]
+        # a two-arm model: the second arm from the first's posture, so that one q holds both
+        guess = postures[0] if len(frames) == 2 and postures else _mid_range(plant)
+        q = solve_hand_ik(plant, frame, chain, start, guess)
+        if q is None:
+            raise RobotError(f"hand_start[{i}]: arm {i + 1} cannot hold its tool down at "
+                             f"{[round(v, 4) for v in start]}")
+        postures.append(q)
+    if len(frames) == 2:
+        postures = [postures[1], postures[1]]
+    return [ArmModel(plant, frame, tuple(chain), q) for (plant, frame), chain, q
+            in zip(hands, chains, postures, strict=True)]
+
+
+def _mid_range(plant: MultibodyPlant) -> np.ndarray:
+    """Each joint at the middle of its limits (0 where unlimited): a posture away from them."""
+    lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+    return np.where(np.isfinite(lo) & np.isfinite(hi), (lo + hi) / 2, 0.0)
+
+
+def solve_hand_ik(plant: MultibodyPlant, frame: Frame, chain, point, guess: np.ndarray,
+                  context=None) -> np.ndarray | None:
+    """q placing ``frame``'s origin at ``point`` with the tool down, within the joint limits,
+    nearest ``guess``, moving only ``chain`` (Drake's InverseKinematics); None if none found."""
+    ik = InverseKinematics(plant) if context is None else InverseKinematics(plant, context)
+    ik.AddPositionConstraint(frame, [0, 0, 0], plant.world_frame(), point, point)
+    ik.AddAngleBetweenVectorsConstraint(frame, TOOL_AXIS, plant.world_frame(), -TOOL_AXIS,
+                                        0.0, TOOL_TILT)
+    prog, q = ik.prog(), ik.q()
+    moving = np.zeros(plant.num_positions(), bool)
+    for joint in chain:
+        moving[joint.position_start()] = True
+    fixed = np.flatnonzero(~moving)
+    prog.AddBoundingBoxConstraint(guess[fixed], guess[fixed], q[fixed])
+    prog.AddQuadraticErrorCost(np.eye(len(guess)), guess, q)
+    prog.SetInitialGuess(q, guess)
+    result = Solve(prog)
+    return result.GetSolution(q) if result.is_success() else None
+
+
+def AddArms(plant: MultibodyPlant, scenario: Scenario) -> tuple[Arm, Arm]:
+    """Parses ``scenario.robot.robot_model`` into ``plant`` (before ``Finalize``): welded at
+    its bases, a massless hand body at each hand frame, every moving joint actuated with PD
+    gains, the arms' gravity off. Raises :class:`RobotError`, which names what is wrong."""
+    packages = installed_packages()
+    model = prepare_model(model_path(scenario.robot.robot_model, packages), packages)
+    controls = _control_models(scenario, model, packages)
+    loaded = _load(plant, scenario, model, packages)
+    instances = sorted({instance for instance, _, _ in loaded})
+    for instance in instances:
+        plant.set_gravity_enabled(instance, False)
+    arms = []
+    for i, ((instance, frame, _), control) in enumerate(zip(loaded, controls, strict=True)):
+        hand = plant.AddRigidBody(f"{ARM_SIDES[i]}_hand_point", instance, SpatialInertia.Zero())
+        plant.WeldFrames(frame, hand.body_frame(), RigidTransform())
+        joints = tuple(plant.GetJointByName(j.name(), instance) for j in control.joints)
+        arms.append((instance, hand, joints, control))
+    _actuate(plant, instances, controls)
+    return tuple(_arm(plant, *arm) for arm in arms)
+
+
+def _actuate(plant: MultibodyPlant, instances, controls: list[ArmModel]) -> None:
+    """An actuator with PD gains on every moving joint of the robot: kp = m ω², kd = 2 m ω,
+    m the joint's diagonal entry of the mass matrix at the nominal posture (its control plant's)."""
+    inertia = {}
+    for control in controls:
+        context = control.plant.CreateDefaultContext()
+        control.plant.SetPositions(context, control.nominal)
+        mass = control.plant.CalcMassMatrix(context)
+        for j in control.plant.GetJointIndices():
+            joint = control.plant.get_joint(j)
+            if joint.num_velocities() == 1:
+                v = joint.velocity_start()
+                inertia[joint.name()] = max(inertia.get(joint.name(), 0.0), mass[v, v])
+    for instance in instances:
+        actuated = {plant.get_joint_actuator(a).joint().index(): plant.get_joint_actuator(a)
+                    for a in plant.GetJointActuatorIndices(instance)}
+        for j in plant.GetJointIndices(instance):
+            joint = plant.get_joint(j)
+            if joint.num_velocities() != 1:
+                continue
+            actuator = actuated.get(j) or plant.AddJointActuator(
+                f"{joint.name()}_actuator", joint, math.inf)
+            m = max(inertia.get(joint.name(), 0.0), 1e-3)
+            actuator.set_controller_gains(PdControllerGains(
+                p=m * PD_FREQUENCY**2, d=2 * m * PD_FREQUENCY))
+
+
+def _arm(plant: MultibodyPlant, instance: ModelInstanceIndex, hand: RigidBody,
+         joints: tuple[Joint, ...], control: ArmModel) -> Arm:
+    first = joints[0].child_body()
+    bodies = _outboard(plant, [first]) if _shared_instance(plant, instance) else \
+        [plant.get_body(b) for b in plant.GetBodyIndices(instance)]
+    base = RigidTransform(control.plant.GetFrameByName(
+        control.joints[0].frame_on_child().name()).CalcPoseInWorld(
+        control.plant.CreateDefaultContext())).translation()
+    return Arm(instance, hand, joints, tuple(bodies),
+               tuple(_outboard(plant, plant.GetBodiesWeldedTo(hand))), base, control)
+
+
+def _shared_instance(plant: MultibodyPlant, instance: ModelInstanceIndex) -> bool:
+    """Whether ``instance`` carries both arms (a two-arm model)."""
+    hands = [b for b in plant.GetBodyIndices(instance)
+             if plant.get_body(b).name().endswith("_hand_point")]
+    return len(hands) == 2
+
+
+def _outboard(plant: MultibodyPlant, bodies) -> list[RigidBody]:
+    """``bodies`` and every body a chain of joints hangs from them."""
+    found = {b.index() for b in bodies}
+    grew = True
+    while grew:
+        grew = False
+        for j in plant.GetJointIndices():
+            joint = plant.get_joint(j)
+            if joint.parent_body().index() in found and joint.child_body().index() not in found:
+                found.add(joint.child_body().index())
+                grew = True
+    return [plant.get_body(b) for b in sorted(found)]
