@@ -63,8 +63,13 @@ def _load(args: argparse.Namespace, first: dict | None = None, on_robot: bool = 
     """The scenario of the command line: ``first`` (overrides the flags may override), then the
     flags' overrides; nothing to keep if a signal stops it."""
     overrides = [first or {}, scenario_overrides(args)]
-    return interruptible(lambda: load_scenario(args.scenario, overrides, on_robot=on_robot),
-                         tick=heartbeat("reading the scenario"))
+    scenario = interruptible(lambda: load_scenario(args.scenario, overrides, on_robot=on_robot),
+                             tick=heartbeat("reading the scenario"))
+    if scenario.robot.robot_model is not None and args.command != "simulate":
+        from dualarm_mpc.sim.reach import check_robot  # simulate's station checks it itself
+
+        interruptible(lambda: check_robot(scenario), tick=heartbeat("checking the robot's reach"))
+    return scenario
 
 
 def cmd_check(args: argparse.Namespace) -> int:

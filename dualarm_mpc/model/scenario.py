@@ -37,7 +37,7 @@ import numpy as np
 from dualarm_mpc.base import yamlcore
 from dualarm_mpc.logic.parser import LTLSyntaxError, parse
 
-BUILTIN = ("table1_vc", "table1_vd")
+BUILTIN = ("table1_vc", "table1_vd", "panda_vc", "panda_vd")
 SOLVER_BACKENDS = ("highs", "scip", "gurobi", "cplex")  # solver.BACKENDS, without importing it
 
 # Caps on the work a scenario can ask for (docs/scenarios.md, "Caps"), each checked on loading.

@@ -73,6 +73,9 @@ class Summary:
     # plant's contact results sampled as the clearances (systems/object_contacts.py), by when
     # they first did: {objects: [name, name], t: first sample, samples: how many found it}.
     object_contacts: list[dict] = field(default_factory=list)
+    # The largest horizontal distance from a hand to the centre of the box it held, sampled as
+    # ``holds`` (``grasp_tolerance`` bounds it in the plan); None if nothing was ever held.
+    max_held_offset_m: float | None = None
     # Which object each hand held over the run, from the gripper's grasps sampled every
     # ``SAMPLE_S`` (``RunLog``): {arm: 1 (right) or 2 (left), object: name, from, to: s}, by
     # ``from``; a hold the run's end cut short ends at ``sim_time_s``.
@@ -200,6 +203,7 @@ class RunLog(Sequence):
         self._held: dict[tuple[int, int], float] = {}  # (arm, object) held now: since when
         self._holds: list[tuple[int, int, float, float]] = []  # (arm, object, from, to)
         self._least = math.inf  # the arms' least distance sampled since the last replan
+        self._offset: float | None = None  # the largest hand-to-held-box distance sampled
         self._clearance: list[list[float]] = []
         self._next = 0.0  # when the next sample is due
         self._wall0 = time.perf_counter()
@@ -239,6 +243,13 @@ class RunLog(Sequence):
             self._held[pair] = t
         for pair in self._held.keys() - now:
             self._holds.append((*pair, self._held.pop(pair), t))
+        if now:
+            station = dual.station
+            pc = station.plant.GetMyContextFromRoot(context)
+            for i, j in now:
+                d = (station.plant.EvalBodyPoseInWorld(pc, station.hands[i]).translation() -
+                     station.plant.EvalBodyPoseInWorld(pc, station.objects[j]).translation())
+                self._offset = max(self._offset or 0.0, math.hypot(d[0], d[1]))
         graph = dual.station.scene_graph
         query = graph.get_query_output_port().Eval(graph.GetMyContextFromRoot(context))
         self._least = min(self._least, dual.clearance.clearance(query))
@@ -249,6 +260,11 @@ class RunLog(Sequence):
         ended = [*self._holds, *((i, j, since, t) for (i, j), since in self._held.items())]
         return [{"arm": i + 1, "object": names[j], "from": round(a, 3), "to": round(b, 3)}
                 for i, j, a, b in sorted(ended, key=lambda h: (h[2], h[0], h[1]))]
+
+    @property
+    def held_offset(self) -> float | None:
+        """The summary's ``max_held_offset_m`` (to 0.1 mm, rounded up)."""
+        return None if self._offset is None else math.ceil(self._offset * 1e4) / 1e4
 
     @property
     def clearance(self) -> list[list[float]]:
@@ -412,6 +428,7 @@ def _summary(scenario: Scenario, dual, context, t: float, wall: float, replans: 
         max_hand_penetration_m=_penetration(_least(dual.hand_clearance, context)),
         object_contacts=_object_contacts(scenario, dual, context),
         holds=replans.holds(t),
+        max_held_offset_m=replans.held_offset,
         clearance=replans.clearance,
         wall_clock={"wall_time_s": round(wall, 3),
                     "realtime_factor": round(t / wall, 4) if wall > 0 else float("inf"),

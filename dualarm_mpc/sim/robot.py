@@ -61,6 +61,10 @@ ARM_SIDES = ("right", "left")  # arm 1 (index 0) is the right arm
 # Franka's TCP); "tool down" is +z along the world's −z, within this angle.
 TOOL_AXIS = np.array([0.0, 0.0, 1.0])
 TOOL_TILT = 0.02  # rad
+# The hands' orientations: tool down, the hand frame's x axis along ±x, the line between the
+# hands (eq. 16), so that a gripper opening along its y (Franka's; ROS's convention) is narrow
+# where the hands come closest.
+FACINGS = (RotationMatrix(np.diag([1.0, -1.0, -1.0])), RotationMatrix(np.diag([-1.0, 1.0, -1.0])))
 # The joint-space controller: MultibodyPlant's PD on every joint, critically damped at this
 # natural frequency (rad/s) for the joint's own inertia, with gravity on the arms switched off
 # (an ideal gravity compensation, docs/robots.md).
@@ -166,6 +170,9 @@ def prepare_model(source: Path, packages: PackageMap) -> PreparedModel:
     if converted:
         _log.warning("converted %d meshes of %s to OBJ in %s", converted, source.name,
                      cache_dir() / "meshes")
+    for parent in root.iter():  # ROS's soft limits, which Drake ignores with a warning each
+        for tag in parent.findall("safety_controller"):
+            parent.remove(tag)
     link, weld = _unweld(root)
     text = ET.tostring(root, encoding="unicode")
     key = hashlib.sha256(f"{source.resolve()}|{text}".encode()).hexdigest()[:16]
@@ -337,7 +344,16 @@ def _control_models(scenario: Scenario, model: PreparedModel, packages: PackageM
         start = [*scenario.robot.hand_start[i], TRAVEL_HEIGHT]
         # a two-arm model: the second arm from the first's posture, so that one q holds both
         guess = postures[0] if len(frames) == 2 and postures else _mid_range(plant)
-        q = solve_hand_ik(plant, frame, chain, start, guess)
+        # first the tool down alone, nearest the middle of the joints' ranges; then turned
+        guess = solve_hand_ik(plant, frame, chain, start, guess)
+        if guess is None:
+            raise RobotError(f"hand_start[{i}]: arm {i + 1} cannot hold its tool down at "
+                             f"{[round(v, 4) for v in start]}")
+        # the hand's x axis along the line between the hands, whichever way keeps the joints
+        # farther from their limits (the wrist turns as the arm sweeps the hand range)
+        found = [q for q in (solve_hand_ik(plant, frame, chain, start, guess, facing)
+                             for facing in FACINGS) if q is not None]
+        q = max(found, key=lambda q: _limit_margin(plant, chain, q), default=None)
         if q is None:
             raise RobotError(f"hand_start[{i}]: arm {i + 1} cannot hold its tool down at "
                              f"{[round(v, 4) for v in start]}")
@@ -348,6 +364,13 @@ def _control_models(scenario: Scenario, model: PreparedModel, packages: PackageM
             in zip(hands, chains, postures, strict=True)]
 
 
+def _limit_margin(plant: MultibodyPlant, chain, q: np.ndarray) -> float:
+    """The least distance of a chain joint from its nearer limit, in fractions of its range."""
+    lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+    k = [joint.position_start() for joint in chain]
+    return float(np.min(np.minimum(q[k] - lo[k], hi[k] - q[k]) / (hi[k] - lo[k])))
+
+
 def _mid_range(plant: MultibodyPlant) -> np.ndarray:
     """Each joint at the middle of its limits (0 where unlimited): a posture away from them."""
     lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
@@ -355,13 +378,18 @@ def _mid_range(plant: MultibodyPlant) -> np.ndarray:
 
 
 def solve_hand_ik(plant: MultibodyPlant, frame: Frame, chain, point, guess: np.ndarray,
-                  context=None) -> np.ndarray | None:
+                  facing: RotationMatrix | None = None) -> np.ndarray | None:
     """q placing ``frame``'s origin at ``point`` with the tool down, within the joint limits,
-    nearest ``guess``, moving only ``chain`` (Drake's InverseKinematics); None if none found."""
-    ik = InverseKinematics(plant) if context is None else InverseKinematics(plant, context)
+    nearest ``guess``, moving only ``chain`` (Drake's InverseKinematics); ``facing``: the hand's
+    whole orientation instead (within ``TOOL_TILT``). None if none found."""
+    ik = InverseKinematics(plant)
     ik.AddPositionConstraint(frame, [0, 0, 0], plant.world_frame(), point, point)
-    ik.AddAngleBetweenVectorsConstraint(frame, TOOL_AXIS, plant.world_frame(), -TOOL_AXIS,
-                                        0.0, TOOL_TILT)
+    if facing is None:
+        ik.AddAngleBetweenVectorsConstraint(frame, TOOL_AXIS, plant.world_frame(), -TOOL_AXIS,
+                                            0.0, TOOL_TILT)
+    else:
+        ik.AddOrientationConstraint(frame, RotationMatrix(), plant.world_frame(), facing,
+                                    TOOL_TILT)
     prog, q = ik.prog(), ik.q()
     moving = np.zeros(plant.num_positions(), bool)
     for joint in chain:
@@ -453,3 +481,43 @@ def _outboard(plant: MultibodyPlant, bodies) -> list[RigidBody]:
                 found.add(joint.child_body().index())
                 grew = True
     return [plant.get_body(b) for b in sorted(found)]
+
+
+def tool_depth(plant: MultibodyPlant, scene_graph, arm: Arm) -> float:
+    """How far the arm's tool (its hand bodies' collision geometry, at the default posture)
+    reaches beyond the hand frame along the tool axis: the hand frame rides that high above a
+    box it holds, so that the tool rests on the box's top face instead of entering it."""
+    inspector = scene_graph.model_inspector()
+    context = plant.CreateDefaultContext()
+    X_HW = plant.EvalBodyPoseInWorld(context, arm.hand).inverse()
+    depth = 0.0
+    for body in arm.hand_bodies:
+        X_HB = X_HW @ plant.EvalBodyPoseInWorld(context, body)
+        for g in plant.GetCollisionGeometriesForBody(body):
+            points = _shape_points(inspector, g)
+            if len(points):
+                in_hand = (X_HB @ inspector.GetPoseInFrame(g)).multiply(points.T).T
+                depth = max(depth, float(np.max(in_hand @ TOOL_AXIS)))
+    return depth
+
+
+def _shape_points(inspector, geometry) -> np.ndarray:
+    """Points whose convex hull holds the geometry, in its frame (k, 3); empty if unknown."""
+    shape = inspector.GetShape(geometry)
+    name = type(shape).__name__
+    if name == "Box":
+        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
+        return np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1)
+                         for sz in (-1, 1)]) * half
+    if name in ("Sphere", "Ellipsoid"):
+        r = [shape.radius()] * 3 if name == "Sphere" else [shape.a(), shape.b(), shape.c()]
+        return np.vstack([np.diag(r), -np.diag(r)])
+    if name in ("Cylinder", "Capsule"):
+        r, half = shape.radius(), shape.length() / 2 + (shape.radius() if name == "Capsule"
+                                                        else 0.0)
+        return np.array([[sx * r, sy * r, sz * half] for sx in (-1, 0, 1) for sy in (-1, 0, 1)
+                         for sz in (-1, 1)])
+    hull = inspector.GetConvexHull(geometry)
+    if hull is None:
+        return np.zeros((0, 3))
+    return np.array([hull.vertex(k) for k in range(hull.num_vertices())])

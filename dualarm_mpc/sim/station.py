@@ -52,7 +52,8 @@ from pydrake.systems.framework import DiagramBuilder
 from dualarm_mpc.base.palette import TABLE_COLOUR, goal_colour
 from dualarm_mpc.model.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
 from dualarm_mpc.sim.resources import ROBOT_URL, package_map
-from dualarm_mpc.sim.robot import ARM_SIDES, AddArms, Arm
+from dualarm_mpc.sim.reach import check_robot
+from dualarm_mpc.sim.robot import ARM_SIDES, AddArms, Arm, tool_depth
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
 from dualarm_mpc.systems.differential_ik import DifferentialIkController
 from dualarm_mpc.systems.gripper import Gripper
@@ -297,6 +298,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
                            for side in ARM_SIDES)
         hand_bodies = tuple([hand] for hand in hands)
     else:
+        check_robot(scenario)
         arms = AddArms(plant, scenario)
         robots = tuple(dict.fromkeys(arm.instance for arm in arms))
         hands, scara = tuple(arm.hand for arm in arms), None
@@ -310,7 +312,9 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
     else:
         _place_arms(plant, arms)
         bases = np.array([arm.base[:2] for arm in arms])
-        grasp_height = scenario.table.object_size  # the hand frame on the box's top face
+        # the tool on the box's top face, 1 mm above it
+        grasp_height = scenario.table.object_size + 1e-3 + max(
+            tool_depth(plant, scene_graph, arm) for arm in arms)
     return Station(
         plant=plant,
         scene_graph=scene_graph,

@@ -5,13 +5,14 @@ Drake's differential inverse kinematics (``DoDifferentialInverseKinematics``, a 
 and step). Every ``time_step`` each arm's commanded posture q_c moves by h·q̇, q̇ the QP's answer
 to the hand's desired spatial velocity
 
-    v = v_ref + K_P·(p_ref − p(q_c)),      ω = K_R·(a(q_c) × (−e_z)),
+    v = v_ref + K_P·(p_ref − p(q_c)),      ω = K_R·log(R_n·R(q_c)ᵀ),
 
-with ``a`` the tool axis (the hand frame's +z): the hand follows the reference, its tool turned
-toward the table. The yaw about the tool axis is left free (its velocity flag off), the QP keeps
-the joint position and velocity limits, and its null-space term pulls toward the arm's nominal
-posture, so that a redundant arm does not drift. Joints outside an arm's chain (fingers, a torso
-both arms share) are held at the nominal posture, their velocity bound zero.
+with R_n the hand's orientation in the nominal posture (:mod:`dualarm_mpc.sim.robot`: tool down,
+the hand frame's x axis along the line between the hands, where grippers are narrow): the hand
+follows the reference and keeps its orientation. The QP keeps the joint position and velocity
+limits, and its null-space term pulls toward the nominal posture, so that a redundant arm does
+not drift. Joints outside an arm's chain (fingers, a torso both arms share) are held at the
+nominal posture, their velocity bound zero.
 
 The output is the plant's desired state [q_c; q̇] per robot model instance, which its PD
 controllers track (gains and gravity compensation: :mod:`dualarm_mpc.sim.robot`).
@@ -35,7 +36,6 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 K_P = 20.0  # 1/s: the hand's position error closes with a 50 ms time constant
 K_R = 20.0  # 1/s: the tool axis's
 CENTERING = 1.0  # 1/s: the null-space pull toward the nominal posture
-DOWN = np.array([0.0, 0.0, -1.0])
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,10 @@ class DifferentialIkController(LeafSystem):
         self._h = time_step
         self._contexts = [arm.plant.CreateDefaultContext() for arm in arms]
         self._params = [self._parameters(arm) for arm in arms]
+        self._orientations = []  # R_n per arm
+        for arm, context in zip(arms, self._contexts, strict=True):
+            arm.plant.SetPositions(context, arm.nominal)
+            self._orientations.append(arm.hand.CalcPoseInWorld(context).rotation())
         # the chain's slots in the state, per arm: positions, then velocities
         self._sizes = [len(arm.joints) for arm in arms]
         start = np.cumsum([0, *self._sizes])
@@ -100,7 +104,6 @@ class DifferentialIkController(LeafSystem):
         params = DifferentialInverseKinematicsParameters(plant.num_positions(),
                                                          plant.num_velocities())
         params.set_time_step(self._h)
-        params.set_end_effector_velocity_flag([True, True, False, True, True, True])
         lo, hi = plant.GetPositionLowerLimits().copy(), plant.GetPositionUpperLimits().copy()
         vmax = plant.GetVelocityUpperLimits().copy()
         moving_q = np.zeros(plant.num_positions(), bool)
@@ -137,7 +140,8 @@ class DifferentialIkController(LeafSystem):
             pose = arm.hand.CalcPoseInWorld(ctx)
             r = ref[6 * i: 6 * i + 6]
             v = r[3:] + K_P * (r[:3] - pose.translation())
-            w = K_R * np.cross(pose.rotation().col(2), DOWN)
+            error = self._orientations[i].multiply(pose.rotation().inverse()).ToAngleAxis()
+            w = K_R * error.angle() * error.axis()
             result = DoDifferentialInverseKinematics(plant, ctx, np.concatenate([w, v]),
                                                      arm.hand, self._params[i])
             speed = np.zeros(self._sizes[i])

@@ -1,0 +1,116 @@
+"""Any robot (docs/robots.md): models nobody here wrote, loaded as their packages ship them.
+
+* a Franka Emika Panda pair from ``example-robot-data`` (STL and COLLADA meshes, converted to OBJ
+  once, in a cache folder): the station places each arm at its base with its hand above
+  ``hand_start``, tool down; the reach check passes;
+* a Universal Robots UR5, whose URDF welds its base to a ``world`` link, loaded twice: each arm
+  stands at its own base;
+* bad models each give one clear line and exit 2 before any planning: a missing file, an unknown
+  package, a frame that does not exist, arms that cannot reach the hand range, arms that clash at
+  eq. (16)'s gap, a mesh that cannot be read;
+* the Panda pair runs §V-D (seed 0, rule 1) closed loop: every object at rest in its goal, the
+  arms at least 3 cm apart over the run, no hand deeper than 5 mm into a box, each held box's
+  centre within 1 cm of its tool (slow).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydrake.systems.framework import DiagramBuilder
+
+from dualarm_mpc.cli.app import main
+from dualarm_mpc.model.scenario import load_scenario
+from dualarm_mpc.sim.reach import check_robot
+from dualarm_mpc.sim.robot import RobotError, installed_packages
+from dualarm_mpc.sim.station import AddStation
+
+pytest.importorskip("trimesh")
+PANDA = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
+UR5 = "package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    """One cache folder for the file's tests, not the user's."""
+    monkeypatch.setenv("DUALARM_MPC_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+def _hands(scenario):
+    builder = DiagramBuilder()
+    station = AddStation(builder, scenario)
+    plant = station.plant
+    context = plant.CreateDefaultContext()
+    return station, [plant.EvalBodyPoseInWorld(context, hand) for hand in station.hands]
+
+
+def test_the_panda_pair_stands_at_its_bases_with_the_hands_at_their_start():
+    scenario = load_scenario("panda_vd", on_robot=True)
+    station, hands = _hands(scenario)
+    assert station.scara is None and len(station.robots) == 2
+    for pose, start in zip(hands, scenario.robot.hand_start, strict=True):
+        np.testing.assert_allclose(pose.translation(), [*start, station.travel_height],
+                                   atol=2e-3)
+        assert pose.rotation().col(2) @ [0, 0, -1] > 0.999  # the tool points down
+    np.testing.assert_allclose(station.arm_bases, [[0.55, 0.075], [-0.55, 0.075]], atol=1e-6)
+    # the tool's fingers reach below the hand frame: it rides that high over a held box
+    assert station.grasp_height > scenario.table.object_size + 0.005
+
+
+def test_a_model_welded_to_world_is_re_placed_at_each_base():
+    scenario = load_scenario("panda_vd", {
+        "robot_model": UR5, "hand_frames": ["tool0"],
+        "arm_bases": [[0.5, 0.075], [-0.5, 0.075, 0.0, 0.0]]})
+    station, hands = _hands(scenario)
+    np.testing.assert_allclose(station.arm_bases[:, 0], [0.5, -0.5], atol=0.2)
+    for pose, start in zip(hands, scenario.robot.hand_start, strict=True):
+        np.testing.assert_allclose(pose.translation()[:2], start, atol=2e-3)
+
+
+def test_installed_robot_packages_are_found_without_a_path():
+    packages = installed_packages()
+    assert packages.Contains("example-robot-data") and packages.Contains("dualarm_mpc")
+
+
+@pytest.mark.parametrize("overrides, words", [
+    ({"robot_model": "/nonexistent/arm.urdf"}, "robot_model: no file /nonexistent/arm.urdf"),
+    ({"robot_model": "package://no_such_pkg/arm.urdf"}, "no package 'no_such_pkg'"),
+    ({"hand_frames": ["panda_gripper"]}, "hand_frames[0]: no frame 'panda_gripper'"),
+    ({"arm_bases": [[1.2, 0.075, 0.0, 3.14159], [-1.2, 0.075]]}, "cannot hold its tool down"),
+    ({"arm_bases": [[0.75, 0.075, 0.0, 3.14159], [-0.75, 0.075]]}, "arm 1 cannot reach"),
+    ({"hand_gap": 0.06, "hand_start": [[0.03, 0.0], [-0.03, 0.0]]},
+     "the least hand_gap that keeps them apart is"),
+])
+def test_a_bad_model_is_one_line_and_exit_2(overrides, words, capsys):
+    scenario = load_scenario("panda_vd", overrides, on_robot=True)
+    with pytest.raises(RobotError, match=None) as err:
+        check_robot(scenario)
+    assert words in str(err.value) and "\n" not in str(err.value)
+    sets = [f"--set={key}: {value}" for key, value in overrides.items()]
+    assert main(["check", "panda_vd", *sets]) == 2
+    assert words in capsys.readouterr().err
+
+
+def test_a_mesh_that_cannot_be_read_names_the_file(tmp_path, capsys):
+    (tmp_path / "broken.stl").write_bytes(b"solid nothing\nthis is not a mesh\n")
+    (tmp_path / "arm.urdf").write_text(
+        '<robot name="arm"><link name="base"><visual><geometry>'
+        '<mesh filename="broken.stl"/></geometry></visual></link></robot>')
+    scenario = load_scenario("panda_vd", {"robot_model": str(tmp_path / "arm.urdf")})
+    with pytest.raises(RobotError, match="broken.stl"):
+        check_robot(scenario)
+
+
+@pytest.mark.slow
+def test_the_panda_pair_delivers_vd_closed_loop():
+    from dualarm_mpc.sim.closed_loop import simulate
+
+    summary = simulate(load_scenario("panda_vd", on_robot=True))
+    assert summary.all_delivered
+    for pos, goal in zip(summary.final_object_pos, (o["goal"] for o in summary.objects),
+                         strict=True):
+        x0, x1, y0, y1 = summary.goals[goal]
+        assert x0 <= pos[0] <= x1 and y0 <= pos[1] <= y1
+    assert summary.min_arm_clearance_m >= 0.03
+    assert summary.max_hand_penetration_m <= 0.005
+    assert summary.max_held_offset_m <= 0.01
