@@ -60,7 +60,8 @@ def test_the_panda_pair_stands_at_its_bases_with_the_hands_at_their_start():
 def test_a_model_welded_to_world_is_re_placed_at_each_base():
     scenario = load_scenario("panda_vd", {
         "robot_model": UR5, "hand_frames": ["tool0"],
-        "arm_bases": [[0.5, 0.075], [-0.5, 0.075, 0.0, 0.0]]})
+        "arm_bases": [[0.5, 0.075], [-0.5, 0.075, 0.0, 0.0]],
+        "hand_gap": 0.25, "hand_start": [[0.13, 0.0], [-0.13, 0.0]]})
     station, hands = _hands(scenario)
     np.testing.assert_allclose(station.arm_bases[:, 0], [0.5, -0.5], atol=0.2)
     for pose, start in zip(hands, scenario.robot.hand_start, strict=True):

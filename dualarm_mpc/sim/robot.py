@@ -267,8 +267,9 @@ def _hand_frame(plant: MultibodyPlant, instance: ModelInstanceIndex, name: str,
                 key: str) -> Frame:
     if plant.HasFrameNamed(name, instance):
         return plant.GetFrameByName(name, instance)
-    frames = sorted({plant.get_frame(f).name() for f in plant.GetFrameIndices(instance)} -
-                    {""})
+    frames = sorted(known for f in plant.GetFrameIndices(instance)
+                    if (known := plant.get_frame(f).name()) and
+                    not known.endswith(("_parent", "_F", "_M", "_child")))
     near = [f for f in frames if any(w in f.lower() for w in ("hand", "tcp", "tool", "ee"))]
     raise RobotError(f"{key}: no frame {name!r} in the robot model (frames such as: "
                      f"{', '.join((near or frames)[:8])})")
@@ -327,11 +328,13 @@ def _control_models(scenario: Scenario, model: PreparedModel, packages: PackageM
         plant.WeldFrames(plant.world_frame(), _root(plant, instance, model).body_frame(),
                          pose @ model.weld)
         plant.Finalize()
-        plants.append(plant)
+        plants.append((plant, instance))
     frames = scenario.robot.hand_frames
-    hands = [(plants[i], plants[i].GetFrameByName(frames[0]))
-             for i in range(2)] if len(frames) == 1 else \
-        [(plants[0], plants[0].GetFrameByName(name)) for name in frames]
+    arms = [(plants[i], frames[0]) for i in range(2)] if len(frames) == 1 else \
+        [(plants[0], name) for name in frames]
+    hands = [(plant, _hand_frame(plant, instance, name,
+                                 f"hand_frames[{frames.index(name)}]"))
+             for (plant, instance), name in arms]
     chains = [_chain(plant, frame) for plant, frame in hands]
     if len(frames) == 2:
         shared = {j.name() for j in chains[0]} & {j.name() for j in chains[1]}

@@ -51,8 +51,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from dualarm_mpc.base.palette import TABLE_COLOUR, goal_colour
 from dualarm_mpc.model.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
-from dualarm_mpc.sim.resources import ROBOT_URL, package_map
 from dualarm_mpc.sim.reach import check_robot
+from dualarm_mpc.sim.resources import ROBOT_URL, package_map
 from dualarm_mpc.sim.robot import ARM_SIDES, AddArms, Arm, tool_depth
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
 from dualarm_mpc.systems.differential_ik import DifferentialIkController
