@@ -22,7 +22,7 @@ from pydrake.systems.framework import DiagramBuilder
 from dualarm_mpc.cli.app import main
 from dualarm_mpc.model.scenario import load_scenario
 from dualarm_mpc.sim.reach import check_robot
-from dualarm_mpc.sim.robot import RobotError, installed_packages
+from dualarm_mpc.sim.robot_files import RobotError, installed_packages
 from dualarm_mpc.sim.station import AddStation
 
 pytest.importorskip("trimesh")

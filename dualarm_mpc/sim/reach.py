@@ -7,7 +7,8 @@ part (a grid, at the heights a hand holds and travels at), in the orientation th
 keeps (:mod:`dualarm_mpc.sim.robot`), each from its neighbour's posture; and, with both hands
 ``hand_gap`` apart at the same y (their closest allowed approach), for the SceneGraph distance
 between the arms. The first point an arm cannot reach, or the least ``hand_gap`` that keeps
-``ARM_CLEARANCE`` between the arms, is a :class:`~dualarm_mpc.sim.robot.RobotError` in one line.
+``ARM_CLEARANCE`` between the arms, is a :class:`~dualarm_mpc.sim.robot_files.RobotError` in
+one line.
 The SCARA is checked in closed form by the scenario itself.
 """
 
@@ -19,7 +20,8 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
 
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.sim.robot import AddArms, Arm, RobotError, solve_hand_ik
+from dualarm_mpc.sim.robot import AddArms, Arm, solve_hand_ik
+from dualarm_mpc.sim.robot_files import RobotError
 from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT
 
 ARM_CLEARANCE = 0.03  # m: what the arms keep apart at the hands' closest approach

@@ -276,7 +276,8 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
 
     The arms start at rest with the hands above ``scenario.robot.hand_start`` at the travel height.
     Raises ValueError if the scenario's ``arm_bases`` differ from the SCARA model's, and
-    :class:`~dualarm_mpc.sim.robot.RobotError` for a robot model that cannot carry the hands.
+    :class:`~dualarm_mpc.sim.robot_files.RobotError` for a robot model that cannot carry the
+    hands.
     """
     if time_step <= 0:
         raise ValueError(f"time_step must be positive, got {time_step}")
