@@ -162,13 +162,14 @@ def test_ik_round_trip_through_the_plant_over_the_workspace():
     context = plant.CreateDefaultContext()
     q = plant.GetPositions(context)
     grid = [(x, y) for x in np.linspace(-0.9, 0.9, 13) for y in np.linspace(-0.3, 0.9, 9)]
+    scara = station.scara
     for i, hand in enumerate(station.hands):
         base = station.arm_bases[i]
         for p in grid:
-            angles = scara_ik(p, base, station.scara.link_lengths, station.scara.elbow_signs[i])
-            assert np.sign(angles[1]) in (0, station.scara.elbow_signs[i])
-            np.testing.assert_allclose(scara_fk(angles, base, station.scara.link_lengths), p, atol=1e-9)
-            q[list(station.scara.position_indices[3 * i : 3 * i + 3])] = [*angles, 0.07]
+            angles = scara_ik(p, base, scara.link_lengths, scara.elbow_signs[i])
+            assert np.sign(angles[1]) in (0, scara.elbow_signs[i])
+            np.testing.assert_allclose(scara_fk(angles, base, scara.link_lengths), p, atol=1e-9)
+            q[list(scara.position_indices[3 * i : 3 * i + 3])] = [*angles, 0.07]
             plant.SetPositions(context, q)
             x = plant.EvalBodyPoseInWorld(context, hand).translation()
             np.testing.assert_allclose(x, [*p, 0.07], atol=1e-9)
