@@ -26,6 +26,10 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
 * **object contacts** — the pairs of objects that touched while one of them moved (the summary's
   ``object_contacts``, from the plant's contact results every 20 ms): a box shoved by another.
 
+* **any robot** (issue 50) — ``--scenes table1_vd panda_vd table1_vc panda_vc`` runs each scene
+  on our SCARA and on the Panda pair (docs/robots.md): the wall time of the same task with the
+  differential IK against the closed form, the arms' clearance, the hands' depth into boxes, and
+  the largest distance from a hand to the box it held (``max_held_offset_m``);
 * **on the clock** (issue 49) — ``--scenes table1_vc table1_vd`` runs §V-C (rule 2 only: rule 1
   cannot throw to its unreachable goals) beside §V-D; ``--busy N`` keeps N other processes busy
   (a loop each, ended with the bench) to measure a loaded machine; each run records its
@@ -37,6 +41,8 @@ Run it (from the repository root)::
     .venv/bin/python bench/closed_loop.py                       # rules 1 and 2, seeds 0-2
     .venv/bin/python bench/closed_loop.py --scenes table1_vc table1_vd --busy 2 \
         --set 'solver.realtime: true' --json bench/results/closed_loop-clock-realtime-busy.json
+    .venv/bin/python bench/closed_loop.py --scenes table1_vd panda_vd table1_vc panda_vc \
+        --seeds 0-0 --json bench/results/closed_loop-robots.json
     .venv/bin/python bench/closed_loop.py --rules 2 --seeds 0,4 --time-limit 5
     .venv/bin/python bench/closed_loop.py --set 'goal_slots: true' --json bench/results/slots.json
 
@@ -85,7 +91,10 @@ from dualarm_mpc.model.scenario import (
 from dualarm_mpc.sim.closed_loop import simulate
 
 SCENARIO = "table1_vd"
-SCENES = (SCENARIO, "table1_vc")
+# §V-D scenes (seeds, rules) and §V-C scenes (rule 2, one run), each on our SCARA and on the Panda
+# pair (docs/robots.md)
+VD_SCENES = (SCENARIO, "panda_vd")
+SCENES = (*VD_SCENES, "table1_vc", "panda_vc")
 M_O, N_O = 2, 6
 SOLUTION = ("optimal", "feasible", "kept")  # a plan in force after the replan
 NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object done, or none can be
@@ -115,7 +124,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="extra scenario overrides, applied last, e.g. --set 'goal_slots: true' "
                         "(repeatable)")
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=[SCENARIO],
-                   help="table1_vd (seeds, rules) and/or table1_vc (rule 2, one run)")
+                   help="table1_vd / panda_vd (seeds, rules) and/or table1_vc / panda_vc "
+                        "(rule 2, one run)")
     p.add_argument("--busy", type=int, default=0, metavar="N",
                    help="other processes kept busy during the runs (a loaded machine)")
     p.add_argument("--json", type=Path, default=Path("bench/results/closed_loop.json"))
@@ -216,6 +226,7 @@ def summary_record(summary) -> dict:
         realtime_factor=summary.wall_clock["realtime_factor"],
         min_arm_clearance_m=summary.min_arm_clearance_m,
         max_hand_penetration_m=summary.max_hand_penetration_m,
+        max_held_offset_m=summary.max_held_offset_m,
         object_contacts=summary.object_contacts,
         replans=len(summary.replans),
         solving_replans=len(solves),
@@ -379,8 +390,8 @@ def busy(n: int):
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     tasks = [(scene, rule, seed) for scene in args.scenes
-             for rule in (args.rules if scene == SCENARIO else [2])
-             for seed in (args.seeds if scene == SCENARIO else [0])]
+             for rule in (args.rules if scene in VD_SCENES else [2])
+             for seed in (args.seeds if scene in VD_SCENES else [0])]
     info = machine()
     records: list[dict] = []
     t0 = time.perf_counter()

@@ -15,7 +15,8 @@ by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, `
 ``table2*.json``; ``clearance`` is what ``object_clearance`` costs and saves, from
 ``table2-m2-apart.json`` and the two closed-loop records (``closed_loop.json``: objects apart,
 ``closed_loop-points.json``); ``clock`` is the closed loop on the clock, one row per
-``closed_loop-clock-*.json`` (lockstep or real time, the latency, other processes kept busy).
+``closed_loop-clock-*.json`` (lockstep or real time, the latency, other processes kept busy);
+``robots`` is each scene on our SCARA and on the Panda pair (``closed_loop-robots.json``).
 Every table ends with the records it comes from: their date and the
 machine's speed.
 
@@ -250,6 +251,36 @@ def render_clock(results: Path) -> str:
     return table(header, rows) + "\n\n" + "\n".join(f"- {s}" for s in sources) + "\n"
 
 
+ROBOTS_RECORD = "closed_loop-robots.json"
+# The scenes run on both robots: the Panda pair's scene and the SCARA's it is scaled from.
+ROBOT_PAIRS = {"panda_vd": "table1_vd", "panda_vc": "table1_vc"}
+
+
+def render_robots(results: Path) -> str:
+    """Any robot (issue 50): each scene on our SCARA and on the Panda pair, closed loop: objects
+    at rest in their goals, the run's wall time and the Panda's against the SCARA's on the same
+    task, the arms' least clearance, the deepest hand into a box, the farthest a held box's centre
+    strayed from its tool."""
+    data = load(results, ROBOTS_RECORD)
+    ok = {(r["scene"], r["rule"], r["seed"]): r for r in data["runs"] if r["status"] == "ok"}
+    rows = []
+    for (scene, rule, seed), r in ok.items():
+        scara = ok.get((ROBOT_PAIRS.get(scene), rule, seed))
+        rows.append([
+            scene, f"{rule}", f"{seed}", f"{r['delivered']}/{r['n_objects']}",
+            f"{r['sim_time_s']:.0f}", f"{r['wall_time_s']:.0f}",
+            f"{r['wall_time_s'] / scara['wall_time_s']:.2f}×" if scara else "—",
+            "—" if r["min_arm_clearance_m"] is None else f"{100 * r['min_arm_clearance_m']:.1f}",
+            "—" if r["max_hand_penetration_m"] is None
+            else f"{1000 * r['max_hand_penetration_m']:.1f}",
+            "—" if r.get("max_held_offset_m") is None
+            else f"{1000 * r['max_held_offset_m']:.1f}"])
+    header = ["scene", "rule", "seed", "at rest in their goals", "simulated s", "wall s",
+              "wall against the SCARA's", "arms apart (cm)", "hand into a box (mm)",
+              "held box from its tool (mm)"]
+    return table(header, rows) + "\n\n- " + provenance(ROBOTS_RECORD, data, commit=False) + "\n"
+
+
 def seed_text(seeds: list[int]) -> str:
     """``0–9`` for a range, ``0, 3, 7`` otherwise."""
     if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
@@ -272,6 +303,7 @@ def regenerate(text: str, results: Path, relative: str) -> str:
         body = (render_paper(results) if name == "paper"
                 else render_clearance(results) if name == "clearance"
                 else render_clock(results) if name == "clock"
+                else render_robots(results) if name == "robots"
                 else render_file(results, name, commit=relative != ""))
         return match.group(1) + body.replace("](../", f"]({relative}") + match.group(4)
     return BLOCK.sub(block, text)

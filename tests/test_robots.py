@@ -115,3 +115,56 @@ def test_the_panda_pair_delivers_vd_closed_loop():
     assert summary.min_arm_clearance_m >= 0.03
     assert summary.max_hand_penetration_m <= 0.005
     assert summary.max_held_offset_m <= 0.01
+
+
+def _two_arm_model(path) -> str:
+    """One URDF holding both Pandas on a torso link (as a torso robot's file would), their
+    links and joints prefixed ``r_`` and ``l_``."""
+    import xml.etree.ElementTree as ET
+
+    from dualarm_mpc.sim.robot_files import installed_packages, model_path
+
+    panda = ET.parse(model_path(PANDA, installed_packages())).getroot()
+    robot = ET.Element("robot", name="two_pandas")
+    ET.SubElement(robot, "link", name="torso")
+    for prefix, xyz, yaw in (("r_", "0.55 0.075 0", 3.141592653589793),
+                             ("l_", "-0.55 0.075 0", 0.0)):
+        for element in panda:
+            twin = ET.fromstring(ET.tostring(element))
+            if twin.tag in ("link", "joint"):
+                twin.set("name", prefix + twin.get("name"))
+            for ref in (*twin.iter("parent"), *twin.iter("child")):
+                ref.set("link", prefix + ref.get("link"))
+            for mimic in twin.iter("mimic"):
+                mimic.set("joint", prefix + mimic.get("joint"))
+            robot.append(twin)
+        joint = ET.SubElement(robot, "joint", name=f"{prefix}mount", type="fixed")
+        ET.SubElement(joint, "parent", link="torso")
+        ET.SubElement(joint, "child", link=f"{prefix}panda_link0")
+        ET.SubElement(joint, "origin", xyz=xyz, rpy=f"0 0 {yaw}")
+    path.write_text(ET.tostring(robot, encoding="unicode"))
+    return str(path)
+
+
+def test_one_model_with_both_arms_places_each_hand(tmp_path):
+    model = _two_arm_model(tmp_path / "two_pandas.urdf")
+    scenario = load_scenario("panda_vd", {
+        "robot_model": model, "hand_frames": ["r_panda_hand_tcp", "l_panda_hand_tcp"],
+        "robot_base": [0.0, 0.0, 0.0, 0.0]}, on_robot=True)
+    check_robot(scenario)
+    station, hands = _hands(scenario)
+    assert len(station.robots) == 1
+    for pose, start in zip(hands, scenario.robot.hand_start, strict=True):
+        np.testing.assert_allclose(pose.translation(), [*start, station.travel_height],
+                                   atol=2e-3)
+
+
+@pytest.mark.slow
+def test_a_panda_run_in_lockstep_is_the_same_twice():
+    from dualarm_mpc.base.outputs import json_text
+    from dualarm_mpc.sim.closed_loop import simulate
+
+    scenario = load_scenario("panda_vd", {"random_objects": {"count": 2}, "m_o": 1, "n_o": 2},
+                             on_robot=True)
+    first, second = (json_text(simulate(scenario).to_json()) for _ in range(2))
+    assert first == second and '"all_delivered": true' in first
