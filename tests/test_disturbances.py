@@ -53,7 +53,8 @@ def index_of_goal(sc: Scenario, goal: str) -> int:
 def test_objects_in_the_hand_range_or_within_a_grasp_of_it_are_not_stuck(rule) -> None:
     sc = vd(rule)
     j = index_of_goal(sc, "red")
-    for p in ([0.0, 0.0], [0.9, -0.3], [-0.94, 0.2], [0.5, 0.94]):
+    half = sc.task.objects[j].grasp_half_size * 0.8  # within a grasp of the range
+    for p in ([0.0, 0.0], [0.9, -0.3], [-0.9 - half, 0.2], [0.5, 0.9 + half]):
         assert dist.stuck_reason(sc, sc.task.goals, j, np.array(p)) is None, p
 
 
@@ -70,9 +71,10 @@ def test_objects_beyond_the_grasp_range_are_stuck_unless_in_their_goal(rule) -> 
 
 def test_rule_1_without_regrasp_an_object_at_the_far_edge_cannot_reach_a_far_goal() -> None:
     """Green's target box starts at y = 0.88; the hands stop at y = 0.9. An object grasped at
-    y = -0.34 (hand at -0.3 at best: offset -0.04) can be carried to y = 0.86 at most — with no
-    release outside the goal (rule 1) there is no regrasp. Rule 2 may put it down and regrasp."""
-    p = np.array([0.0, -0.34])
+    y = -0.3225 (hand at -0.3 at best: offset -0.0225, within the on-robot grasp box of 0.025)
+    can be carried to y = 0.8775 at most — with no release outside the goal (rule 1) there is no
+    regrasp. Rule 2 may put it down and regrasp."""
+    p = np.array([0.0, -0.3225])
     j = index_of_goal(vd(1), "green")
     assert dist.stuck_reason(vd(1), vd(1).task.goals, j, p) == \
         "rule 1: no single grasp carries it into its goal"
