@@ -65,8 +65,8 @@ def _load(args: argparse.Namespace, first: dict | None = None, on_robot: bool = 
     overrides = [first or {}, scenario_overrides(args)]
     scenario = interruptible(lambda: load_scenario(args.scenario, overrides, on_robot=on_robot),
                              tick=heartbeat("reading the scenario"))
-    if scenario.robot.robot_model is not None and args.command != "simulate":
-        from dualarm_mpc.sim.reach import check_robot  # simulate's station checks it itself
+    if scenario.robot.robot_model is not None:  # before any planning (docs/robots.md)
+        from dualarm_mpc.sim.reach import check_robot
 
         interruptible(lambda: check_robot(scenario), tick=heartbeat("checking the robot's reach"))
     return scenario
