@@ -26,11 +26,12 @@ $(VENV)/.installed-test: pyproject.toml
 	touch $@ $(VENV)/.installed-docs $(VENV)/.installed-base
 
 # The plan is made as on the robot (model/scenario.py, ON_ROBOT): each object aimed at its own slot
-# of its goal, keeping 1 cm from the others.
+# of its goal, keeping 1 cm from the others, held under the tool.
 demo: $(VENV)/.installed-base
 	mkdir -p $(OUT)
 	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --set 'goal_margin: 0.03' --set 'goal_slots: true' \
-		--set 'object_clearance: 0.01' --out $(OUT)/plan.json --plot $(OUT)/plan.png
+		--set 'object_clearance: 0.01' --set 'grasp_tolerance: 0.025' --out $(OUT)/plan.json \
+		--plot $(OUT)/plan.png
 	$(BIN)/dualarm-mpc simulate table1_vc --rule 2 --html $(OUT)/replay.html \
 		--summary $(OUT)/summary.json --plot $(OUT)/run.png
 
