@@ -42,7 +42,7 @@ Run it (from the repository root)::
     .venv/bin/python bench/closed_loop.py --scenes table1_vc table1_vd --busy 2 \
         --set 'solver.realtime: true' --json bench/results/closed_loop-clock-realtime-busy.json
     .venv/bin/python bench/closed_loop.py --scenes table1_vd panda_vd table1_vc panda_vc \
-        --seeds 0-0 --json bench/results/closed_loop-robots.json
+        --json bench/results/closed_loop-robots.json
     .venv/bin/python bench/closed_loop.py --rules 2 --seeds 0,4 --time-limit 5
     .venv/bin/python bench/closed_loop.py --set 'goal_slots: true' --json bench/results/slots.json
 
