@@ -299,6 +299,21 @@ def test_a_signal_during_the_check_ends_the_run_at_once(tmp_path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
+def test_a_signal_during_the_largest_step_ends_the_run_at_once(tmp_path) -> None:
+    """The largest step a scenario may ask, ten objects delivered of ten: its route bound
+    (``route.py``, some 30 s here) polls the stop, so the run ends within the limit with the
+    interrupt's exit code (it once ran on for minutes inside the bound)."""
+    proc = cli("plan", "table1_vd", "--mo", "10", "--no", "10", cwd=tmp_path)
+    for line in proc.stdout:  # the table's head: the first step's bound comes next
+        if line.startswith("the horizons T"):
+            break
+    time.sleep(2)  # into the bound
+    stdout, stderr = stop(proc, signal.SIGTERM)
+    assert proc.returncode == 143, stderr
+    assert "interrupted by SIGTERM" in stderr and "Traceback" not in stderr
+
+
 # --- a closed stdout does not cost the files ---------------------------------------------------
 
 

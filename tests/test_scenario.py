@@ -230,7 +230,7 @@ def test_empty_or_malformed_box(overrides, prefix: str) -> None:
     [
         ({"rule": 3}, "rule: must be 1"),
         ({"delivery": "throw"}, "delivery: must be 'reach' or 'rest'"),
-        ({"m_o": 0}, "m_o: must be >= 1 and <= 200, got 0"),
+        ({"m_o": 0}, "m_o: must be >= 1 and <= 10, got 0"),
         ({"m_o": 7, "n_o": 6}, "m_o: need 1 <= m_o <= n_o"),
         ({"task_form": "both"}, "task_form: must be"),
         ({"solver": {"backend": "glpk"}}, "solver.backend: unknown solver 'glpk' (one of highs"),
@@ -691,6 +691,11 @@ def test_caps_are_checked_on_loading() -> None:
                    "n_o": 14}, "table1_vd").startswith(
         "task_form: subsets makes φ_task a disjunction of 3,432 subsets")  # C(14, 7)
     load_scenario("table1_vc", {"task_form": "subsets", "m_o": 5, "n_o": 10})  # 252
+    # the route bound's work: m_o·2^m_o stages, C(n_o, m_o)·2^m_o choices
+    assert _error({"m_o": 11, "n_o": 11}).startswith("m_o: must be >= 1 and <= 10, got 11")
+    assert _error({"random_objects": {"count": 20}, "m_o": 8, "n_o": 20}, "table1_vd") \
+        .startswith("n_o: the route bound weighs 32,248,320 choices")  # C(20, 8)·2^8
+    load_scenario("table1_vd", {"m_o": 10, "n_o": 10})  # 1,024: the largest step
 
 
 def test_a_rule_given_twice_is_in_force_once() -> None:

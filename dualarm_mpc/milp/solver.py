@@ -90,6 +90,11 @@ class SolveOptions:
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)
 
+    def stopped(self) -> bool:
+        """Whether a stop was requested (``interrupt``): polled by the loops outside the
+        solvers that can run long (the route bound, ``route.py``)."""
+        return self.interrupt is not None and self.interrupt.is_set()
+
 
 class WorkLimit:
     """A count of the programs solved under it, from any thread, and the most it allows. Read

@@ -51,6 +51,11 @@ MAX_TEXT_CHARS = 10_000
 # C(12, 6) = 924 build a program of T = 40 in 0.27 s, C(16, 8) = 12,870 in 2.3 s (measured), and
 # a step builds one per horizon tried, the search many more
 MAX_TASK_SUBSETS = 1000
+# The route bound of a step (model/route.py): m_o·2^m_o stages per hand and axis (m_o = 10:
+# 21 s and 400 MB, measured; each object more doubles both), over C(n_o, m_o)·2^m_o choices of
+# the objects delivered and the hand that first holds each (C(200, 2)·4 = 79,600)
+MAX_STEP_DELIVERIES = 10
+MAX_ROUTE_CHOICES = 100_000
 
 
 def ortools_installed() -> bool:
@@ -306,7 +311,7 @@ class Task:
     random_objects: RandomObjects | None = None
     seed: int = field(default=0, metadata=_in(0, 2**32 - 1))
     rule: int = 2
-    m_o: int = field(default=2, metadata=_in(1, MAX_OBJECTS))  # delivered per step (eq. 13)
+    m_o: int = field(default=2, metadata=_in(1, MAX_STEP_DELIVERIES))  # delivered per step (eq. 13)
     n_o: int = field(default=6, metadata=_in(1, MAX_OBJECTS))  # considered per step
     delivery: str = "reach"  # "reach" (paper, ◇θ) or "rest" (in the goal and at rest at T)
     task_form: str = "counting"  # "counting" (Σ ev_j ≥ m_o) or "subsets" (eq. 13 literally)
@@ -370,6 +375,11 @@ class Task:
                 f"task_form: subsets makes φ_task a disjunction of {subsets:,} subsets (m_o = "
                 f"{self.m_o} of n_o = {self.n_o}), more than {MAX_TASK_SUBSETS:,}; use "
                 "task_form: counting (the same task) or a smaller n_o")
+        if subsets * 2**self.m_o > MAX_ROUTE_CHOICES:
+            raise ScenarioError(
+                f"n_o: the route bound weighs {subsets * 2**self.m_o:,} choices of the objects "
+                f"delivered and their hands (C({min(self.n_o, len(self.objects))}, {self.m_o})"
+                f"·2^{self.m_o}), more than {MAX_ROUTE_CHOICES:,}; use a smaller n_o or m_o")
         for n, text in enumerate(self.rules):
             try:
                 parse(text)

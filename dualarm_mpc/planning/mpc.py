@@ -348,7 +348,8 @@ class Replanner:
         wall0 = time.perf_counter()
         res = None
         problem = job.problem
-        for T in range(predict_horizon(problem), problem.scenario.solver.max_horizon + 1):
+        for T in range(predict_horizon(problem, job.options),
+                       problem.scenario.solver.max_horizon + 1):
             res = self._solve_horizon(problem, T, job.options, start=job.start)
             if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
                 break

@@ -71,7 +71,7 @@ class Interrupted(Exception):
 
 
 def _stop_if_asked(options: SolveOptions | None) -> None:
-    if options is not None and options.interrupt is not None and options.interrupt.is_set():
+    if options is not None and options.stopped():
         raise Interrupted
 
 
@@ -89,12 +89,12 @@ def solve_horizon(problem: StepProblem, horizon: int, options: SolveOptions | No
     return search_step(problem, horizon, options, below, incumbent)
 
 
-def predict_horizon(problem: StepProblem) -> int:
+def predict_horizon(problem: StepProblem, options: SolveOptions | None = None) -> int:
     """predictT: the smallest horizon the reachability bound does not rule out (§IV-C.2) — the
     m_o-th smallest step at which an object of the step can first be in its goal — or, where
     no-throw (18) holds for every object of the step, the route bound of the hands
     (:func:`~dualarm_mpc.model.route.horizon_bound`) if larger: the horizons below either have no
-    plan."""
+    plan. A stop (``options.interrupt``) ends the route bound, which then says nothing."""
     scenario, state, spec = problem.scenario, problem.state, problem.spec
     objects = list(spec.objects)
     model = Model.from_scenario(scenario, objects)
@@ -103,7 +103,8 @@ def predict_horizon(problem: StepProblem) -> int:
     reach = reachability(model, local, cap)
     first = np.sort(reach.first_goal)
     no_throw = frozenset(objects.index(j) for j in spec.released_only_in_goal())
-    routes = horizon_bound(model, local, spec.m_o, no_throw, cap)
+    routes = horizon_bound(model, local, spec.m_o, no_throw, cap,
+                           options.stopped if options else None)
     return int(min(max(first[spec.m_o - 1], routes, 1), cap))
 
 
@@ -157,7 +158,7 @@ def witness(problem: StepProblem, options: SolveOptions | None) -> StepResult | 
     model = Model.from_scenario(scenario, objects)
     cap = scenario.solver.max_horizon
     if horizon_bound(model, state.select(objects), spec.m_o, frozenset(range(len(objects))),
-                     cap) > cap:
+                     cap, options.stopped if options else None) > cap:
         return None  # no route delivers m_o objects without a throw (§V-C's goals)
     # without the second prover: the witness's own horizons need no proofs
     alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
@@ -194,7 +195,7 @@ def below_witness(problem: StepProblem, found: StepResult, options: SolveOptions
     options = options or solve_options(problem.scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
-    undecided = list(range(predict_horizon(problem), found.horizon + 1))
+    undecided = list(range(predict_horizon(problem, options), found.horizon + 1))
     left_open: set[int] = set()  # the horizons the search has left undecided once
     first = None  # the plan of the lowest horizon that has one
     slice_s = FIRST_SLICE_SHARE * budget
@@ -286,7 +287,7 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
     options = options or solve_options(scenario)
     first_slice = PROVER_FIRST_SLICE_SHARE * options.time_limit_s
     with second_prover(problem, options, first_slice, on_try) as prover:
-        for T in range(predict_horizon(problem), cap + 1):
+        for T in range(predict_horizon(problem, options), cap + 1):
             _stop_if_asked(options)
             if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
                 check_cap = False  # once
