@@ -78,9 +78,12 @@ class Range:
     hi_open: bool = False
 
     def check(self, value: float, path: str) -> None:
+        if isinstance(value, float) and not math.isfinite(value):  # as a file's value is told
+            raise ScenarioError(f"{path}: expected a finite number, got "
+                                f"{_show(yamlcore.written(value))}")
         above = value > self.lo if self.lo_open else value >= self.lo
         below = value < self.hi if self.hi_open else value <= self.hi
-        if not (above and below):  # NaN too
+        if not (above and below):
             raise ScenarioError(f"{path}: must be {self}, got {_show(value)}")
 
     def __str__(self) -> str:
@@ -844,6 +847,29 @@ def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> lis
         )
         for j, (x, y) in enumerate(xy)
     ]
+
+
+def seconds_problem(value) -> str | None:
+    """What is wrong with ``value`` as a span of seconds (a time limit, a duration), or None:
+    the one check of the command line's ``--time-limit`` and ``--duration`` and of the library's
+    ``MpcPlanner(time_limit_s=)`` and ``simulate(duration=)``, in the same words."""
+    if isinstance(value, bool) or not isinstance(value, int | float) \
+            or not (math.isfinite(value) and value > 0):
+        return f"must be a positive number of seconds, got {value}"
+    return None
+
+
+def check_goals(goals: dict, task: Task, where: str) -> None:
+    """``goals`` (name → box, e.g. a goals port's value) gives every goal of ``task`` a box
+    [xmin, xmax, ymin, ymax] that is not empty: each error names ``where`` and the field."""
+    if not isinstance(goals, dict):
+        raise ScenarioError(f"{where}: expected a mapping of goal names to boxes, got "
+                            f"{_show(goals)}")
+    for name in task.goals:
+        if name not in goals:
+            raise ScenarioError(f"{where}: goals.{name} is missing (the scenario's goals: "
+                                f"{', '.join(task.goals)})")
+        _box(list(goals[name]), f"{where}: goals.{name}")
 
 
 def _box(value: list[float], path: str) -> None:

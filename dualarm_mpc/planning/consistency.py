@@ -147,7 +147,9 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     """Check every object not yet resting in its goal on its own (in parallel, on
     ``solver.workers`` threads), then — if they all pass and ``joint`` — the first sequential
     step as a whole. ``progress(done, total)`` is called as each object's check ends (from the
-    worker threads), so that a long check can say how far it is."""
+    worker threads), so that a long check can say how far it is. ``scenario`` is checked first
+    as ``load_scenario`` checks it (:meth:`~dualarm_mpc.model.scenario.Scenario.validate`)."""
+    scenario.validate()
     state = State.initial(scenario) if state is None else state
     options = options or solve_options(scenario)
     T = scenario.solver.max_horizon
