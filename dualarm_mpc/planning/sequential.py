@@ -292,7 +292,7 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
             if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
                 check_cap = False  # once
                 if horizon_ruled_out(problem, cap, CAP_CHECK_TIME_S, options):
-                    raise PlanningError(diagnose(problem, None, options), proven=True)
+                    raise PlanningError(diagnose(problem, None, options, True), proven=True)
             res = solve_horizon(problem, T, options, below=below)
             _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
             if on_try:
@@ -310,7 +310,7 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
     if last is not None and last.status.has_solution:
         return dataclasses.replace(last, undecided=tuple(undecided),
                                    proofs=_shorter(proofs, last.horizon))
-    raise PlanningError(diagnose(problem, last, options), proven=not undecided)
+    raise PlanningError(diagnose(problem, last, options, not undecided), proven=not undecided)
 
 
 @contextmanager
@@ -359,16 +359,23 @@ class _NoProver:
         return {}
 
 
-def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOptions | None
-             ) -> str:
+def within_cap(scenario: Scenario) -> str:
+    """The horizon cap as the reasons name it: the field and its value."""
+    return f"within solver.max_horizon = {scenario.solver.max_horizon}"
+
+
+def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOptions | None,
+             proven: bool) -> str:
     """Why no plan exists within the horizon cap: which rules, dropped, make the task feasible
     (each decided at the cap: by the skeleton search's feasibility pass, or the monolithic MILP
-    stopped at its first solution)."""
+    stopped at its first solution). ``proven``: every horizon up to the cap was proven to have
+    no plan, which the reason says whether or not the rest is decided."""
     scenario, spec = problem.scenario, problem.spec
     T = scenario.solver.max_horizon
     objects = [scenario.task.objects[j].name for j in spec.objects]
-    status = f" (last status: {last.status.value})" if last else ""
-    head = f"no plan delivering {spec.m_o} of {objects} within horizon {T}{status}"
+    status = f" (last status: {last.status.value})" if last and not proven else ""
+    proof = ", proven for every horizon" if proven else ""
+    head = f"no plan delivering {spec.m_o} of {objects} {within_cap(scenario)}{proof}{status}"
     options = options or solve_options(scenario)
     quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s, 20.0),
                                 mip_rel_gap=1.0)
@@ -387,7 +394,8 @@ def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOption
                 f"|v| <= {scenario.robot.max_speed} and |u| <= {scenario.robot.max_force}"
                 f"{apart} from this state")
     if not alone.has_solution:
-        return f"{head}: the solver could not decide the task alone within its time limit"
+        return (f"{head}; whether the task alone or the rules cause it was not decided within "
+                "the time limit (solver.time_limit_s)")
     culprits = [name for name, f in spec.rules if not feasible([(name, f)]).has_solution]
     if culprits:
         return f"{head}: the task conflicts with rule(s) {', '.join(culprits)}"
