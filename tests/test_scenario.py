@@ -87,12 +87,9 @@ def test_override_by_dict_and_by_yaml_text_agree() -> None:
     assert isinstance(as_dict.solver.time_limit_s, float)
 
 
-def test_empty_override_is_the_file() -> None:
-    assert (
-        load_scenario("table1_vc", "")
-        == load_scenario("table1_vc")
-        == load_scenario("table1_vc", {})
-    )
+def test_no_overrides_is_the_file() -> None:
+    # an override text that sets nothing is refused (test_an_override_that_sets_nothing_...)
+    assert load_scenario("table1_vc") == load_scenario("table1_vc", {})
 
 
 def test_override_replaces_objects_and_scenario_file_path(tmp_path) -> None:
@@ -731,3 +728,46 @@ def test_the_rules_expansion_is_capped_with_the_horizon() -> None:
     with pytest.raises(ScenarioError, match=r"^rules\[0\]: the rules up to this one expand "
                                             r"to 4,812 formula nodes .* 4,816,812 over the 1001"):
         rule_formulas(s)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("", "sets nothing"), ("null", "sets nothing"), ("{}", "sets nothing"),
+    ("# a comment", "sets nothing"),
+])
+def test_an_override_that_sets_nothing_is_refused(text, message, capsys) -> None:
+    """``--set ''`` and ``--set null`` exited 0 having done nothing (issue 52)."""
+    from dualarm_mpc.cli.app import main
+
+    with pytest.raises(ScenarioError, match=f"^override: {message}"):
+        load_scenario("table1_vc", text)
+    assert main(["check", "table1_vc", "--set", text]) == 2
+    assert f"error: --set {text!r}: {message} (give 'field: value'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n", "---\n"])
+def test_an_empty_scenario_file_says_it_is_empty(tmp_path, text) -> None:
+    """It was reported as "goals: at least one goal region is needed"."""
+    path = tmp_path / "empty.yaml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match=r"empty.yaml: the file is empty \(blank or comments "
+                       r"only\): a scenario needs at least goals and objects"):
+        load_scenario(str(path))
+
+
+@pytest.mark.parametrize(("event", "message"), [
+    ({"kind": "move_object", "target": "object1", "position": [0.0, 0.1],
+      "box": [0.0, 0.1, 0.0, 0.1]},
+     r"^events\[0\].box: a move_object event has no box \(move_object takes position, "
+     r"move_goal takes box\)$"),
+    ({"kind": "move_goal", "target": "red", "box": [0.3, 0.6, 0.6, 0.9],
+      "position": [0.0, 0.1]}, r"^events\[0\].position: a move_goal event has no position"),
+    ({"time": 3.0, "kind": "move_object", "target": "object1", "position": [5.0, 0.1]},
+     r"^events\[0\].position: object1 moved to \[5.0, 0.1\] at t = 3 s lies beyond the hands' "
+     r"reach \(workspace \[-0.9, 0.9, -0.3, 0.9\] widened by its grasp_half_size 0.05\) and "
+     r"outside its goal"),
+])
+def test_an_event_that_would_do_nothing_or_lose_its_object_is_refused(event, message) -> None:
+    """A ``box`` on a move_object event was ignored; an object moved 5 m off the table ran the
+    whole simulation and failed at its end without naming the event (issue 52)."""
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario("table1_vd", {"events": [event]})

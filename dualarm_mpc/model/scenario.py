@@ -218,7 +218,13 @@ class Event:
     box: list[float] = field(default_factory=list, metadata=COORDINATE)
 
     def validate(self, path: str, task: Task) -> None:
-        """``path``: ``events[e]``; the target must be one of ``task``'s objects or goals."""
+        """``path``: ``events[e]``; the target must be one of ``task``'s objects or goals, and
+        the event gives its own kind's field only (the other would be ignored)."""
+        unused = {"move_object": ("box", self.box), "move_goal": ("position", self.position)}
+        name, value = unused.get(self.kind, ("", None))
+        if value:
+            raise ScenarioError(f"{path}.{name}: a {self.kind} event has no {name} (move_object "
+                                "takes position, move_goal takes box)")
         if self.kind == "move_object":
             if self.target not in {o.name for o in task.objects}:
                 raise ScenarioError(f"{path}.target: no object named {self.target!r}")
@@ -445,18 +451,26 @@ class Scenario:
         robot, task, max_horizon = self.robot, self.task, self.solver.max_horizon
         xmin, xmax, ymin, ymax = robot.workspace
         step = robot.max_speed * robot.dt
-        for j, o in enumerate(task.objects):
-            (x, y), half = o.position, o.grasp_half_size
+        drawn = "" if task.random_objects is None else " (drawn from random_objects.region)"
+        by_name = {o.name: o for o in task.objects}
+        # (field, object, position, how it got there, whether its start): an object an event
+        # moves must stay where a hand can fetch it, as at its start
+        places = [(f"objects[{j}].position", o, o.position, f"at {o.position}{drawn}", True)
+                  for j, o in enumerate(task.objects)]
+        places += [(f"events[{e}].position", by_name[event.target], event.position,
+                    f"moved to {event.position} at t = {event.time:g} s", False)
+                   for e, event in enumerate(self.events) if event.kind == "move_object"]
+        for path, o, (x, y), how, start in places:
+            half = o.grasp_half_size
             gx0, gx1, gy0, gy1 = task.goals[o.goal]
             away = max(gx0 - x, x - gx1, gy0 - y, y - gy1, 0.0)  # per axis, as the speed bound
             reach = xmin - half <= x <= xmax + half and ymin - half <= y <= ymax + half
             if away > 0 and not reach:
-                drawn = "" if task.random_objects is None else " (drawn from random_objects.region)"
                 raise ScenarioError(
-                    f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the "
-                    f"hands' reach (workspace {robot.workspace} widened by its grasp_half_size "
-                    f"{half}) and outside its goal {o.goal}")
-            if away > step * max_horizon + 1e-9:
+                    f"{path}: {o.name} {how} lies beyond the hands' reach (workspace "
+                    f"{robot.workspace} widened by its grasp_half_size {half}) and outside its "
+                    f"goal {o.goal}")
+            if start and away > step * max_horizon + 1e-9:
                 raise ScenarioError(
                     f"dt: with dt = {robot.dt} s and max_speed = {robot.max_speed} m/s an object "
                     f"moves at most {step:.3g} m per step, {step * max_horizon:.3g} m in "
@@ -685,13 +699,15 @@ def _paths(data: dict) -> dict:
     return out
 
 
-def _yaml(text: str, where: str) -> dict:
+def _yaml(text: str, where: str, empty: str) -> dict:
+    """The flat mapping of fields in ``text``; none at all is an error saying ``empty`` (a file or
+    an override that sets nothing would be read as the defaults, silently)."""
     try:
         data = yamlcore.load(text, where)
     except yamlcore.YAMLInputError as err:
         raise ScenarioError(str(err)) from None
-    if data is None:
-        return {}
+    if data is None or data == {}:
+        raise ScenarioError(f"{where}: {empty}")
     if not isinstance(data, dict):
         raise ScenarioError(f"{where}: expected a mapping of scenario fields, got {_show(data)}")
     return _paths(data)
@@ -699,7 +715,7 @@ def _yaml(text: str, where: str) -> dict:
 
 def parse_override(text: str, where: str = "override") -> dict:
     """A YAML mapping of fields (or field paths) to values, e.g. ``solver.time_limit_s: 5``."""
-    return _yaml(text, where)
+    return _yaml(text, where, "sets nothing (give 'field: value', e.g. 'rule: 1')")
 
 
 def scenario_path(name_or_path: str) -> Path:
@@ -748,7 +764,8 @@ def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict
                             f"{err.object[err.start]:#04x})") from err
     except OSError as err:
         raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
-    data = _yaml(text, str(path))
+    data = _yaml(text, str(path), "the file is empty (blank or comments only): a scenario "
+                 "needs at least goals and objects (docs/scenarios.md)")
     _one_source_of_objects(data, drawn=False, listed=0)
     base = _build_scenario(data)
     if not on_robot and (overrides is None or isinstance(overrides, dict | str)):
@@ -768,7 +785,7 @@ def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict
 def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:
     """A copy of ``scenario`` with ``overrides`` applied, objects resolved, all checked."""
     scenario = copy.deepcopy(scenario)
-    overrides = _yaml(overrides, "override") if isinstance(overrides, str) else \
+    overrides = parse_override(overrides) if isinstance(overrides, str) else \
         _paths(overrides or {})
     task = scenario.task
     if overrides:
