@@ -459,3 +459,22 @@ def test_nothing_to_do_with_a_plot_writes_it(tmp_path, capsys) -> None:
     png = tmp_path / "p.png"
     assert main(["plan", str(path), *NOTHING_TO_DO, "--plot", str(png)]) == 0
     assert whole(png)
+
+
+def test_a_path_is_judged_as_the_os_would_open_it(tmp_path, monkeypatch, capsys) -> None:
+    """``p.json/.`` and ``x/../p.json`` (no x) were written as ./p.json, and a link to a file in
+    a missing directory named the wrong directory (issue 52)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "link.json").symlink_to("gone/deeper/p.json")
+    cases = {"p.json/.": "p.json/. names a directory",
+             "p.json/..": "p.json/.. names a directory",
+             "x/../p.json": "directory x does not exist",
+             "a/b/../../p.json": "directory a does not exist",
+             "link.json": "link.json is a symbolic link to gone/deeper/p.json, and directory "
+                          f"{tmp_path / 'gone'} does not exist"}
+    for path, said in cases.items():
+        assert outputs.output_problem(path) == said
+        with pytest.raises(SystemExit):
+            main(["plan", str(BASE), "--out", path])
+        assert f"argument --out: {said}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.json"]
