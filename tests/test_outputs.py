@@ -478,3 +478,20 @@ def test_a_path_is_judged_as_the_os_would_open_it(tmp_path, monkeypatch, capsys)
             main(["plan", str(BASE), "--out", path])
         assert f"argument --out: {said}" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["link.json"]
+
+
+def test_a_signal_between_two_outputs_says_which_were_written(tmp_path, monkeypatch,
+                                                              capsys) -> None:
+    """A stop after plan.json is written but before plan.png said only "interrupted by
+    SIGINT" (issue 52). The signal is raised where the plot is drawn, as Ctrl-C there would."""
+    from dualarm_mpc.figures import plan as figure
+
+    def signalled(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(figure, "plot_plan", signalled)
+    assert main(["plan", str(BASE), "--out", "p.json", "--plot", "p.png"]) == 130
+    assert "interrupted by SIGINT; wrote p.json; not written: p.png" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]
+    assert whole(tmp_path / "p.json")
