@@ -283,7 +283,7 @@ def _measured(**changes) -> np.ndarray:
     (_measured(hand_vel=np.inf), {},
      r"measured_state: hand_vel\[0, 0\] is inf, not a finite number"),
     (_measured(), {"red": None},
-     r"goals: goals.red is missing \(the scenario's goals: red, green, blue\)"),
+     r"goals: goals.red is missing \(the objects' goals: red\)"),
     (_measured(), {"red": [RED[1], RED[0], RED[2], RED[3]]}, r"goals: goals.red: empty box"),
 ])
 def test_a_bad_value_at_a_port_raises_there_naming_the_field(measured, goals, message) -> None:

@@ -877,15 +877,17 @@ def seconds_problem(value) -> str | None:
 
 
 def check_goals(goals: dict, task: Task, where: str) -> None:
-    """``goals`` (name → box, e.g. a goals port's value) gives every goal of ``task`` a box
-    [xmin, xmax, ymin, ymax] that is not empty: each error names ``where`` and the field."""
+    """``goals`` (name → box, e.g. a goals port's value) gives every goal an object of ``task``
+    is bound for a box [xmin, xmax, ymin, ymax] that is not empty: each error names ``where``
+    and the field."""
     if not isinstance(goals, dict):
         raise ScenarioError(f"{where}: expected a mapping of goal names to boxes, got "
                             f"{_show(goals)}")
-    for name in task.goals:
+    needed = [name for name in task.goals if any(o.goal == name for o in task.objects)]
+    for name in needed:
         if name not in goals:
-            raise ScenarioError(f"{where}: goals.{name} is missing (the scenario's goals: "
-                                f"{', '.join(task.goals)})")
+            raise ScenarioError(f"{where}: goals.{name} is missing (the objects' goals: "
+                                f"{', '.join(needed)})")
         _box(list(goals[name]), f"{where}: goals.{name}")
 
 
