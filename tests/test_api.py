@@ -136,3 +136,48 @@ def test_the_readme_snippets_run(tmp_path, monkeypatch) -> None:
     for code in readme_snippets():
         exec(compile(code, "README.md", "exec"), {"__name__": "readme"})
     assert np.all([p.stat().st_size > 0 for p in tmp_path.rglob("*.png")])
+
+
+@pytest.mark.parametrize(("field", "value", "key"), [
+    ("solver.time_limit_s", -1.0, "solver.time_limit_s"),
+    ("solver.time_limit_s", float("nan"), "solver.time_limit_s"),
+    ("task.m_o", 0, "m_o"),
+    ("task.goals", {"red": [0.4, 0.2, 0.5, 0.7], "blue": [-0.4, -0.2, 0.5, 0.7]}, "goals"),
+])
+def test_the_library_refuses_what_the_command_line_refuses_in_its_words(tmp_path, capsys, field,
+                                                                         value, key) -> None:
+    """A scenario changed after loading is checked again by ``dm.check``, ``dm.plan`` and
+    ``dm.simulate`` (``Scenario.validate``, what ``load_scenario`` and so the CLI run)."""
+    import dataclasses
+    import json
+
+    from dualarm_mpc.cli.app import main
+
+    scenario = dm.load_scenario(scene_file(tmp_path))
+    group, name = field.split(".")
+    bad = dataclasses.replace(scenario, **{group: dataclasses.replace(getattr(scenario, group),
+                                                                       **{name: value})})
+    messages = set()
+    for entry in (dm.check, dm.plan, dm.simulate):
+        with pytest.raises(dm.ScenarioError) as caught:
+            entry(bad)
+        messages.add(str(caught.value))
+    assert len(messages) == 1
+    capsys.readouterr()
+    code = main(["check", scene_file(tmp_path), "--set",
+                 f"{key}: {json.dumps(value) if value == value else '.nan'}"])
+    said = messages.pop()  # the value as the caller wrote it: nan, or YAML's .nan
+    assert code == 2 and said.rsplit(" got ", 1)[0] in capsys.readouterr().err
+
+
+def test_the_library_refuses_a_duration_the_command_line_refuses(tmp_path, capsys) -> None:
+    from dualarm_mpc.cli.app import main
+
+    scenario = dm.load_scenario(scene_file(tmp_path))
+    with pytest.raises(dm.ScenarioError, match="^duration: must be a positive number of seconds, "
+                                               "got -1$"):
+        dm.simulate(scenario, duration=-1)
+    with pytest.raises(SystemExit):
+        main(["simulate", scene_file(tmp_path), "--duration", "-1"])
+    assert "argument --duration: must be a positive number of seconds, got -1" in \
+        capsys.readouterr().err

@@ -278,3 +278,16 @@ def test_no_backend_prints_anything() -> None:
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=120, check=True, cwd=Path(__file__).parent)
     assert run.stdout == "" and run.stderr == "", (run.stdout, run.stderr)
+
+
+@pytest.mark.parametrize("backend", [_param("cplex")])
+def test_the_check_s_program_over_a_size_limit_is_named_with_what_sizes_it(backend) -> None:
+    """The limit's line quoted "this MILP" without saying it was the consistency check's."""
+    from dualarm_mpc.model.scenario import load_scenario
+    from dualarm_mpc.planning.consistency import check
+
+    scenario = load_scenario("table1_vc", {"solver": {"backend": backend}})
+    with pytest.raises(SolverUnavailable, match=r"^the consistency check's one-object programs "
+                       r"\(horizons up to solver.max_horizon = 40\): solver 'cplex': this MILP "
+                       r"has .* a smaller solver.max_horizon makes them smaller$"):
+        check(scenario, joint=False)

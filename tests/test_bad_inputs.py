@@ -134,8 +134,8 @@ def _scene(tmp_path: Path, objects: int, extra: str = "") -> Path:
 # Scenarios too large to keep as files: (objects, extra YAML, what stderr must name)
 LARGE = [
     (2000, "m_o: 2\nn_o: 4\n", "objects: 2,000 objects, at most 200"),
-    (30, "m_o: 15\nn_o: 30\ntask_form: subsets\n",
-     "task_form: subsets makes φ_task a disjunction of 155,117,520 subsets"),
+    (30, "m_o: 10\nn_o: 30\ntask_form: subsets\n",
+     "task_form: subsets makes φ_task a disjunction of 30,045,015 subsets"),
     (2, "m_o: 1\nn_o: 2\nrules: ['" + " & ".join(["eta[1,1]"] * 20_000) + "']\n",
      "rules[0]: 219,997 characters, at most 10,000"),
     (10, "m_o: 2\nn_o: 10\nrules: ['G(" + " | ".join(f"eta[{1 + k % 2},{'jlm'[k % 3]}]"

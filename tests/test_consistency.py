@@ -115,3 +115,54 @@ def test_a_rule_about_an_object_outside_the_first_step_is_no_conflict(two) -> No
     program holding object2 can satisfy it."""
     report = check(two(m_o=1, n_o=1, rules=["F eta[1,2]"]))
     assert report.consistent and not report.undecided
+
+
+@pytest.mark.parametrize("rule", ["X[50] true", "F[0:2] theta[1]", "last"])
+def test_a_rule_that_cannot_hold_within_the_horizon_cap_says_so(two, rule) -> None:
+    """The proof used the rule alone (no task) at every horizon up to the cap: the reason names
+    the rule and solver.max_horizon, not "never let a hand hold it" (issue 52)."""
+    report = check(two(rules=[rule]), joint=False)
+    assert report.conflicts
+    for c in report.conflicts:
+        assert c.rules == (f"rules[0] {rule}",)
+        assert f"rules[0] {rule} cannot hold at any horizon within solver.max_horizon = 15 " \
+            "steps" in c.reason and "whatever the task" in c.reason, c.reason
+
+
+def test_check_and_plan_print_the_same_reason_for_a_rule_beyond_the_cap(scenario_file,
+                                                                        capsys) -> None:
+    from dualarm_mpc.cli.app import main
+
+    path = str(scenario_file(TWO_OBJECTS, solver={"time_limit_s": 10, "max_horizon": 15},
+                             rules=["X[50] true"]))
+    lines = {}
+    for command in ("check", "plan"):
+        capsys.readouterr()
+        assert main([command, path]) == 3
+        out = capsys.readouterr()
+        lines[command] = [line for line in (out.out + out.err).splitlines()
+                          if line.startswith("conflict:")]
+    assert lines["check"] == lines["plan"]
+    assert "solver.max_horizon = 15" in lines["check"][0]
+
+
+def test_a_proven_conflict_says_what_was_proven_when_the_rest_is_undecided(two) -> None:
+    """Every horizon proven to have no plan, the why not decided (here: no time at all) was
+    "the solver could not decide the task alone", as if nothing had been proven (issue 52)."""
+    import dataclasses
+
+    from dualarm_mpc.milp.horizon import solve_options
+    from dualarm_mpc.milp.solver import Interrupt
+    from dualarm_mpc.model.mld import State
+    from dualarm_mpc.model.spec import StepProblem, specification
+    from dualarm_mpc.planning.sequential import diagnose
+
+    scenario = two()
+    stop = Interrupt()
+    stop.set()
+    options = dataclasses.replace(solve_options(scenario), interrupt=stop)
+    problem = StepProblem(scenario, State.initial(scenario), specification(scenario, [0, 1]))
+    said = diagnose(problem, None, options, proven=True)
+    assert said == ("no plan delivering 2 of ['object1', 'object2'] within solver.max_horizon "
+                    "= 15, proven for every horizon; whether the task alone or the rules cause "
+                    "it was not decided within the time limit (solver.time_limit_s)")

@@ -248,3 +248,48 @@ def test_a_planner_nobody_closed_does_not_hold_the_exit() -> None:
                           timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["searching"]
+
+
+@pytest.mark.parametrize("limit", [-1, float("nan"), 0])
+def test_the_planner_refuses_a_time_limit_the_command_line_refuses(limit) -> None:
+    with pytest.raises(ValueError, match=f"^time_limit_s: must be a positive number of seconds, "
+                                         f"got {limit}$"):
+        dm.MpcPlanner(scenario(), time_limit_s=limit)
+
+
+def _first_replan(measured: np.ndarray, goals) -> None:
+    """The planner's first update (t = 0) with ``measured`` and ``goals`` at its ports."""
+    sc = scenario()
+    with dm.MpcPlanner(sc) as planner:
+        context = planner.CreateDefaultContext()
+        planner.get_measured_state_input_port().FixValue(context, measured)
+        planner.get_goals_input_port().FixValue(context, AbstractValue.Make(goals))
+        Simulator(planner, context).AdvanceTo(0.0)
+
+
+def _measured(**changes) -> np.ndarray:
+    sc = scenario()
+    state = dm.State(hand_pos=np.array(sc.robot.hand_start, float), hand_vel=np.zeros((2, 2)),
+                     object_pos=np.array([[0.1, 0.1]]), object_vel=np.zeros((1, 2)),
+                     grasp=np.zeros((2, 1), int))
+    for name, value in changes.items():
+        getattr(state, name)[np.unravel_index(0, getattr(state, name).shape)] = value
+    return state.vector()
+
+
+@pytest.mark.parametrize(("measured", "goals", "message"), [
+    (_measured(object_pos=np.nan), {},
+     r"measured_state: object_pos\[0, 0\] is nan, not a finite number"),
+    (_measured(hand_vel=np.inf), {},
+     r"measured_state: hand_vel\[0, 0\] is inf, not a finite number"),
+    (_measured(), {"red": None},
+     r"goals: goals.red is missing \(the objects' goals: red\)"),
+    (_measured(), {"red": [RED[1], RED[0], RED[2], RED[3]]}, r"goals: goals.red: empty box"),
+])
+def test_a_bad_value_at_a_port_raises_there_naming_the_field(measured, goals, message) -> None:
+    """Not a replan's "error" or "infeasible": the caller's value is wrong, and says where.
+    ``goals``: changes to the scenario's (None: left out)."""
+    goals = {name: box for name, box in {**scenario().task.goals, **goals}.items()
+             if box is not None}
+    with pytest.raises(ValueError, match=message):
+        _first_replan(measured, goals)

@@ -135,7 +135,7 @@ def test_paper_rules() -> None:
         ("~X a", Not(X(a))),
         ("N a", WX(a)),
         ("X true | false", Or((X(TRUE), FALSE))),
-        ("Xa & WXb", And((X(a), Atom("WXb")))),  # Spot's: X touching its argument
+        ("Xa & WXb", And((X(a), WX(b)))),  # Spot's X, flloat's WX, touching their argument
         ('"Xa" & X1', And((Atom("Xa"), Atom("X1")))),  # a quoted atom; X and a digit is an atom
         ("GFa", G(F(a))),
         ("XXeta[1,3]", X(X(eta(1, 3)))),

@@ -38,7 +38,7 @@ from dualarm_mpc.logic.ltl import (
     eta,
     theta,
 )
-from dualarm_mpc.logic.parser import parse
+from dualarm_mpc.logic.parser import LTLSyntaxError, parse
 
 LTLfParser = pytest.importorskip("flloat.parser.ltlf").LTLfParser
 
@@ -135,3 +135,37 @@ def test_ltlf2dfa_text_means_the_same_here(text: str) -> None:
         for bits in itertools.product((False, True), repeat=2 * (horizon + 1)):
             trace = {a: list(bits[:horizon + 1]), b: list(bits[horizon + 1:])}
             assert truth_table(ours, trace, horizon) == peer_table(peer, trace, horizon), bits
+
+
+@pytest.mark.parametrize("text", [
+    "XXWX!(!WXGGG a)",  # WX touching its argument, as flloat and ltlf2dfa read it
+    "(a <-> b) <-> c",  # a chain unparenthesized is refused (below)
+    "!a <-> (b <-> c)",
+])
+def test_peers_spellings_read_by_both_mean_the_same(text: str) -> None:
+    """Found in flloat's and ltlf2dfa's test suites (issue 52): read by both parsers, the same
+    truth at every step of every trace over a, b, c of 1 to 3 steps."""
+    names = [Atom("a"), Atom("b"), Atom("c")]
+    ours, peer = parse(text), PEER_PARSER(text)
+    for horizon in range(3):
+        for bits in itertools.product((False, True), repeat=3 * (horizon + 1)):
+            trace = {atom: list(bits[n * (horizon + 1):(n + 1) * (horizon + 1)])
+                     for n, atom in enumerate(names)}
+            steps = [{a.name: v[k] for a, v in trace.items()} for k in range(horizon + 1)]
+            assert truth_table(ours, trace, horizon) == \
+                [bool(peer.truth(steps, k)) for k in range(horizon + 1)], (text, bits)
+
+
+def test_a_chain_of_equivalences_is_refused_where_peers_read_it_otherwise() -> None:
+    """flloat reads ``a <-> b <-> c`` as "all three equal", not as either nesting."""
+    assert str(PEER_PARSER("a <-> b <-> c").truth([{"a": False, "b": False, "c": False}], 0))
+    for text in ("a <-> b <-> c", "a -> (b <-> c <-> a)"):
+        with pytest.raises(LTLSyntaxError, match=r"a chain of <->"):
+            parse(text)
+    assert parse("a <-> b -> c <-> a") == parse("a <-> (b -> (c <-> a))")
+
+
+def test_a_reversed_range_is_refused_saying_how_spot_reads_it() -> None:
+    with pytest.raises(LTLSyntaxError, match=r"^column 4: empty range F\[4:2\] \(Spot reads it "
+                       r"as F\[2:4\]: write that if it is meant\)"):
+        parse("F[4:2] a")

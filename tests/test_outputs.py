@@ -299,6 +299,21 @@ def test_a_signal_during_the_check_ends_the_run_at_once(tmp_path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
+def test_a_signal_during_the_largest_step_ends_the_run_at_once(tmp_path) -> None:
+    """The largest step a scenario may ask, ten objects delivered of ten: its route bound
+    (``route.py``, some 30 s here) polls the stop, so the run ends within the limit with the
+    interrupt's exit code (it once ran on for minutes inside the bound)."""
+    proc = cli("plan", "table1_vd", "--mo", "10", "--no", "10", cwd=tmp_path)
+    for line in proc.stdout:  # the table's head: the first step's bound comes next
+        if line.startswith("the horizons T"):
+            break
+    time.sleep(2)  # into the bound
+    stdout, stderr = stop(proc, signal.SIGTERM)
+    assert proc.returncode == 143, stderr
+    assert "interrupted by SIGTERM" in stderr and "Traceback" not in stderr
+
+
 # --- a closed stdout does not cost the files ---------------------------------------------------
 
 
@@ -444,3 +459,39 @@ def test_nothing_to_do_with_a_plot_writes_it(tmp_path, capsys) -> None:
     png = tmp_path / "p.png"
     assert main(["plan", str(path), *NOTHING_TO_DO, "--plot", str(png)]) == 0
     assert whole(png)
+
+
+def test_a_path_is_judged_as_the_os_would_open_it(tmp_path, monkeypatch, capsys) -> None:
+    """``p.json/.`` and ``x/../p.json`` (no x) were written as ./p.json, and a link to a file in
+    a missing directory named the wrong directory (issue 52)."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "link.json").symlink_to("gone/deeper/p.json")
+    cases = {"p.json/.": "p.json/. names a directory",
+             "p.json/..": "p.json/.. names a directory",
+             "x/../p.json": "directory x does not exist",
+             "a/b/../../p.json": "directory a does not exist",
+             "link.json": "link.json is a symbolic link to gone/deeper/p.json, and directory "
+                          f"{tmp_path / 'gone'} does not exist"}
+    for path, said in cases.items():
+        assert outputs.output_problem(path) == said
+        with pytest.raises(SystemExit):
+            main(["plan", str(BASE), "--out", path])
+        assert f"argument --out: {said}" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.json"]
+
+
+def test_a_signal_between_two_outputs_says_which_were_written(tmp_path, monkeypatch,
+                                                              capsys) -> None:
+    """A stop after plan.json is written but before plan.png said only "interrupted by
+    SIGINT" (issue 52). The signal is raised where the plot is drawn, as Ctrl-C there would."""
+    from dualarm_mpc.figures import plan as figure
+
+    def signalled(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(figure, "plot_plan", signalled)
+    assert main(["plan", str(BASE), "--out", "p.json", "--plot", "p.png"]) == 130
+    assert "interrupted by SIGINT; wrote p.json; not written: p.png" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.json"]
+    assert whole(tmp_path / "p.json")

@@ -233,3 +233,55 @@ def test_under_no_throw_both_hands_deliver_an_object_no_sooner_than_one_hand_cou
         res = HorizonProgram(scenario, state, objects, bound - 1).solve(
             restricted(spec, (j,), (j,)), options, allowed=allowed)
         assert res.status is Status.INFEASIBLE, (j, bound)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_bound_over_delivered_sets_is_the_least_over_the_orders(seed) -> None:
+    """Held–Karp (``route._delivered``) against the enumeration it replaced: for every share
+    of up to four no-throw objects, from the start and from moving hands, the least over the
+    share's orders of the slower axis's route (``axis_steps`` along each order) is the bound."""
+    scenario = load_scenario("table1_vd", {"rule": 1, "seed": seed,
+                                           "random_objects": {"count": 4}})
+    objects = [0, 1, 2, 3]
+    model = Model.from_scenario(scenario, objects)
+    no_throw = frozenset(objects)
+    for state in (State.initial(scenario), _random_state(scenario, objects,
+                                                         np.random.default_rng(seed))):
+        for i in range(N_HANDS):
+            for k in range(1, 5):
+                for share in itertools.combinations(objects, k):
+                    by_orders = min(
+                        max(axis_steps(*route._route(model, state, i, order, a, no_throw), 60)
+                            for a in range(2))
+                        for order in itertools.permutations(share))
+                    assert route_steps(model, state, i, share, no_throw, 60) == by_orders, \
+                        (i, share)
+
+
+class _StopAfter:
+    """A ``stopped`` that says yes from its ``polls``-th call on, counting the calls."""
+
+    def __init__(self, polls: int) -> None:
+        self.polls, self.calls = polls, 0
+
+    def __call__(self) -> bool:
+        self.calls += 1
+        return self.calls >= self.polls
+
+
+def test_a_stop_ends_the_largest_step_s_bound_at_its_next_poll() -> None:
+    """The largest step a scenario may ask, ten objects of ten delivered (m_o = 10, the cap):
+    the bound polls the stop as it counts and, once stopped, each count left returns at its
+    first poll (at most the 2 × 10 single objects' and the loop's) with 0, ruling nothing out."""
+    scenario = load_scenario("table1_vd", {"rule": 1, "m_o": 10, "n_o": 10})
+    objects = list(range(10))
+    model = Model.from_scenario(scenario, objects)
+    state = State.initial(scenario).select(objects)
+    for polls in (1, 30):
+        stop = _StopAfter(polls)
+        assert horizon_bound(model, state, 10, frozenset(objects), 40, stop) == 0
+        assert stop.calls <= polls + 2 * 10 + 1
+        route._STAGES.clear()
+    stop = _StopAfter(5)
+    assert route_steps(model, state, 0, tuple(objects), frozenset(objects), 40, stop) == 0
+    assert stop.calls == 5

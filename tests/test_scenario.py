@@ -87,12 +87,9 @@ def test_override_by_dict_and_by_yaml_text_agree() -> None:
     assert isinstance(as_dict.solver.time_limit_s, float)
 
 
-def test_empty_override_is_the_file() -> None:
-    assert (
-        load_scenario("table1_vc", "")
-        == load_scenario("table1_vc")
-        == load_scenario("table1_vc", {})
-    )
+def test_no_overrides_is_the_file() -> None:
+    # an override text that sets nothing is refused (test_an_override_that_sets_nothing_...)
+    assert load_scenario("table1_vc") == load_scenario("table1_vc", {})
 
 
 def test_override_replaces_objects_and_scenario_file_path(tmp_path) -> None:
@@ -230,7 +227,7 @@ def test_empty_or_malformed_box(overrides, prefix: str) -> None:
     [
         ({"rule": 3}, "rule: must be 1"),
         ({"delivery": "throw"}, "delivery: must be 'reach' or 'rest'"),
-        ({"m_o": 0}, "m_o: must be >= 1 and <= 200, got 0"),
+        ({"m_o": 0}, "m_o: must be >= 1 and <= 10, got 0"),
         ({"m_o": 7, "n_o": 6}, "m_o: need 1 <= m_o <= n_o"),
         ({"task_form": "both"}, "task_form: must be"),
         ({"solver": {"backend": "glpk"}}, "solver.backend: unknown solver 'glpk' (one of highs"),
@@ -691,6 +688,11 @@ def test_caps_are_checked_on_loading() -> None:
                    "n_o": 14}, "table1_vd").startswith(
         "task_form: subsets makes φ_task a disjunction of 3,432 subsets")  # C(14, 7)
     load_scenario("table1_vc", {"task_form": "subsets", "m_o": 5, "n_o": 10})  # 252
+    # the route bound's work: m_o·2^m_o stages, C(n_o, m_o)·2^m_o choices
+    assert _error({"m_o": 11, "n_o": 11}).startswith("m_o: must be >= 1 and <= 10, got 11")
+    assert _error({"random_objects": {"count": 20}, "m_o": 8, "n_o": 20}, "table1_vd") \
+        .startswith("n_o: the route bound weighs 32,248,320 choices")  # C(20, 8)·2^8
+    load_scenario("table1_vd", {"m_o": 10, "n_o": 10})  # 1,024: the largest step
 
 
 def test_a_rule_given_twice_is_in_force_once() -> None:
@@ -726,3 +728,46 @@ def test_the_rules_expansion_is_capped_with_the_horizon() -> None:
     with pytest.raises(ScenarioError, match=r"^rules\[0\]: the rules up to this one expand "
                                             r"to 4,812 formula nodes .* 4,816,812 over the 1001"):
         rule_formulas(s)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("", "sets nothing"), ("null", "sets nothing"), ("{}", "sets nothing"),
+    ("# a comment", "sets nothing"),
+])
+def test_an_override_that_sets_nothing_is_refused(text, message, capsys) -> None:
+    """``--set ''`` and ``--set null`` exited 0 having done nothing (issue 52)."""
+    from dualarm_mpc.cli.app import main
+
+    with pytest.raises(ScenarioError, match=f"^override: {message}"):
+        load_scenario("table1_vc", text)
+    assert main(["check", "table1_vc", "--set", text]) == 2
+    assert f"error: --set {text!r}: {message} (give 'field: value'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text", ["", "\n\n", "# only a comment\n", "---\n"])
+def test_an_empty_scenario_file_says_it_is_empty(tmp_path, text) -> None:
+    """It was reported as "goals: at least one goal region is needed"."""
+    path = tmp_path / "empty.yaml"
+    path.write_text(text)
+    with pytest.raises(ScenarioError, match=r"empty.yaml: the file is empty \(blank or comments "
+                       r"only\): a scenario needs at least goals and objects"):
+        load_scenario(str(path))
+
+
+@pytest.mark.parametrize(("event", "message"), [
+    ({"kind": "move_object", "target": "object1", "position": [0.0, 0.1],
+      "box": [0.0, 0.1, 0.0, 0.1]},
+     r"^events\[0\].box: a move_object event has no box \(move_object takes position, "
+     r"move_goal takes box\)$"),
+    ({"kind": "move_goal", "target": "red", "box": [0.3, 0.6, 0.6, 0.9],
+      "position": [0.0, 0.1]}, r"^events\[0\].position: a move_goal event has no position"),
+    ({"time": 3.0, "kind": "move_object", "target": "object1", "position": [5.0, 0.1]},
+     r"^events\[0\].position: object1 moved to \[5.0, 0.1\] at t = 3 s lies beyond the hands' "
+     r"reach \(workspace \[-0.9, 0.9, -0.3, 0.9\] widened by its grasp_half_size 0.05\) and "
+     r"outside its goal"),
+])
+def test_an_event_that_would_do_nothing_or_lose_its_object_is_refused(event, message) -> None:
+    """A ``box`` on a move_object event was ignored; an object moved 5 m off the table ran the
+    whole simulation and failed at its end without naming the event (issue 52)."""
+    with pytest.raises(ScenarioError, match=message):
+        load_scenario("table1_vd", {"events": [event]})

@@ -315,7 +315,7 @@ def test_unreachable_goals_with_rule_1_name_the_no_throw_rule(n: int) -> None:
     )
     with pytest.raises(PlanningError, match=r"no-throw") as info:
         transport(scenario)
-    assert "object1" in str(info.value) and "horizon 8" in str(info.value)
+    assert "object1" in str(info.value) and "solver.max_horizon = 8" in str(info.value)
 
 
 def test_too_slow_hands_name_the_task_alone() -> None:

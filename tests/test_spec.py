@@ -39,6 +39,20 @@ def test_a_rule_the_planner_cannot_use_is_refused_by_field(rule: str, message: s
     assert str(info.value).startswith(message), info.value
 
 
+def test_an_object_s_name_means_that_object_and_a_word_that_is_none_is_refused() -> None:
+    """``G !eta[1,object1]`` was a placeholder over every object (arm 1 never held anything),
+    and ``G !eta[1,cup]`` with no object cup the same, silently."""
+    named = dict(_rules(["G !eta[1,object1] & F theta[object3]"]))
+    numbered = dict(_rules(["G !eta[1,1] & F theta[3]"]))
+    assert list(named.values())[-1] == list(numbered.values())[-1]
+    with pytest.raises(ScenarioError, match=r"^rules\[0\]: eta\[1,cup\]: cup is no object's "
+                       r"name and no placeholder \(one letter: j, l, ...\); the objects: "
+                       r"object1, object2, .*object10, or their numbers 1..10$"):
+        _rules(["G !eta[1,cup]"])
+    with pytest.raises(ScenarioError, match=r"^rules\[0\]: eta\[object1,2\]: the hand is"):
+        _rules(["G !eta[object1,2]"])  # a name stands for an object, never a hand
+
+
 def test_more_placeholders_than_a_step_has_objects_is_refused() -> None:
     """It expanded to nothing: the rule was silently dropped."""
     with pytest.raises(ScenarioError, match=r"^rules\[0\]: 3 distinct object placeholders "

@@ -113,8 +113,11 @@ def output_problem(path: str) -> str | None:
     file there, as the write will be; the path itself is never opened)."""
     if not path:
         return "an empty path"
-    if path.endswith(os.sep):
+    if path.endswith(os.sep) or os.path.basename(path) in (".", ".."):
         return f"{path} names a directory"
+    written = os.path.dirname(path) or "."
+    if not os.path.isdir(written):  # judged as the OS will: x/../p.json needs x
+        return f"directory {_first_missing(written)} does not exist"
     try:
         mode = os.stat(path).st_mode  # through symbolic links
     except FileNotFoundError:
@@ -129,10 +132,21 @@ def output_problem(path: str) -> str | None:
     if mode is not None and not os.access(path, os.W_OK):
         return f"cannot write {path}: it is read-only"
     target = Path(os.path.realpath(path))
-    if not target.parent.is_dir():
-        return f"directory {os.path.dirname(path) or '.'} does not exist"
+    if not target.parent.is_dir():  # a symbolic link to nothing, in a directory not there
+        return (f"{path} is a symbolic link to {os.readlink(path)}, and directory "
+                f"{_first_missing(str(target.parent))} does not exist")
     reason = _cannot_create_in(target)
     return f"cannot write {path}: {reason}" if reason else None
+
+
+def _first_missing(directory: str) -> str:
+    """The first directory on the way to ``directory`` that does not exist (as written)."""
+    parts = Path(directory).parts
+    for k in range(1, len(parts) + 1):
+        prefix = os.path.join(*parts[:k])
+        if not os.path.isdir(prefix):
+            return prefix
+    return directory
 
 
 def directory_problem(path: str) -> str | None:

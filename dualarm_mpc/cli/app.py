@@ -21,6 +21,7 @@ import sys
 
 from dualarm_mpc import __version__
 from dualarm_mpc.cli.arguments import (
+    OUTPUT_FLAGS,
     Once,
     directory,
     output,
@@ -33,6 +34,7 @@ from dualarm_mpc.cli.commands import cmd_check, cmd_plan, cmd_simulate
 from dualarm_mpc.cli.process import (
     BAD_INPUT,
     Abandoned,
+    outputs_left,
     signal_name,
     stop_signals,
     stopped,
@@ -86,6 +88,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    args = None
     with stop_signals(), sturdy_streams():
         try:
             args = _parser().parse_args(argv)
@@ -98,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
             sys.stdout.flush()
             os._exit(stopped())
         except KeyboardInterrupt:  # outside a solve (or a second signal): nothing left to keep
-            print(f"interrupted by {signal_name()}", file=sys.stderr)
+            asked = [path for flag in OUTPUT_FLAGS if (path := getattr(args, flag, None))]
+            print(f"interrupted by {signal_name()}{outputs_left(asked)}", file=sys.stderr)
             code = stopped()
     return code
 

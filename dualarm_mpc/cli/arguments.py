@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import shutil
 from pathlib import Path
@@ -15,6 +14,7 @@ from dualarm_mpc.model.scenario import (
     merge_overrides,
     parse_override,
     scenario_path,
+    seconds_problem,
 )
 
 
@@ -55,8 +55,9 @@ def seconds(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected seconds, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    problem = seconds_problem(value)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     return value
 
 

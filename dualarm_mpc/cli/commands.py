@@ -98,6 +98,7 @@ def _write(output: outputs.Output | None, save, what: str = "") -> bool:
     if output.error is not None:
         print(f"error: cannot write {output}: {output.error.strerror}", file=sys.stderr)
         return False
+    process.written.append(output.path)
     print(f"wrote {output}{what}")
     return True
 

@@ -23,6 +23,17 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 received: list[int] = []  # the stop signals received by this run, first first
+written: list[str] = []  # the outputs this run has written whole, first first
+
+
+def outputs_left(asked: list[str]) -> str:
+    """For the line of a stop that came while outputs were being written: which of ``asked``
+    were written whole and which not ("" where none was asked)."""
+    done = [path for path in asked if path in written]
+    left = [path for path in asked if path not in written]
+    said = ([f"wrote {', '.join(done)}"] if done else []) + \
+        ([f"not written: {', '.join(left)}"] if left else [])
+    return "".join(f"; {part}" for part in said)
 
 
 class Abandoned(KeyboardInterrupt):
@@ -97,6 +108,7 @@ def stop_signals():
         raise KeyboardInterrupt
 
     received.clear()
+    written.clear()
     before = {s: signal.signal(s, stop) for s in STOP_SIGNALS}
     try:
         yield

@@ -7,7 +7,8 @@ The same tree is built from text (:func:`dualarm_mpc.logic.parser.parse`) or fro
 
 Text syntax, lowest to highest precedence (Spot's; every spelling in docs/ltl.md)::
 
-    a -> b   a <-> b  implication, equivalence (right-associative; also => <=> --> <-->)
+    a -> b   a <-> b  implication (right-associative; also => -->), equivalence (also <=>
+                      <-->; a chain a <-> b <-> c is refused: parenthesize it)
     a | b | c         disjunction (n-ary; also || \\/)
     a xor b           exclusive or (left-associative; also ^)
     a & b & c         conjunction (n-ary; also && /\\)
@@ -280,9 +281,11 @@ def _is_name(name: object) -> bool:
 
 
 def needs_quotes(name: str) -> bool:
-    """Whether an atom's name would read as a unary F, G or X touching the rest (Spot's rule:
-    ``Xa`` is ``X a``; ``X1`` is an atom)."""
-    return name[0] in "FGX" and len(name) > 1 and not name[1].isdigit()
+    """Whether an atom's name would read as a unary F, G, X or WX touching the rest (Spot's
+    rule: ``Xa`` is ``X a``, ``X1`` an atom; flloat's and ltlf2dfa's for ``WXa``)."""
+    op = "WX" if name.startswith("WX") else name[0]
+    return op in ("F", "G", "X", "WX") and len(name) > len(op) \
+        and not name[len(op)].isdigit()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -397,8 +400,9 @@ def _to_text(f: Formula, min_prec: int) -> str:
             text = " & ".join(_to_text(a, _AND + 1) for a in args)
         case Or(args):
             text = " | ".join(_to_text(a, _OR + 1) for a in args)
-        case Implies(lhs, rhs) | Equiv(lhs, rhs):  # right-associative
-            text = f"{_to_text(lhs, _IMPLIES + 1)} {f.keyword} {_to_text(rhs, _IMPLIES)}"
+        case Implies(lhs, rhs) | Equiv(lhs, rhs):  # right-associative; no chain of <->
+            chain = isinstance(f, Equiv) and isinstance(rhs, Equiv)
+            text = f"{_to_text(lhs, _IMPLIES + 1)} {f.keyword} {_to_text(rhs, _IMPLIES + chain)}"
         case Xor(lhs, rhs):  # left-associative
             text = f"{_to_text(lhs, _XOR)} xor {_to_text(rhs, _XOR + 1)}"
         case Until(lhs, rhs) | Release(lhs, rhs) | WeakUntil(lhs, rhs) | StrongRelease(lhs, rhs):

@@ -85,8 +85,8 @@ def _tokenize(text: str) -> list[_Token]:
                 kind = word.lower()
             elif word in KEYWORDS:
                 kind = _CANONICAL.get(word, word)
-            elif needs_quotes(word):  # Spot's GFa: the operator, then the rest from pos + 1
-                word = kind = word[0]
+            elif needs_quotes(word):  # Spot's GFa, flloat's WXGa: the operator, then the rest
+                word = kind = "WX" if word.startswith("WX") else word[0]
         elif m := _INT.match(text, pos):
             word, kind = m[0], "int"
         elif m := _QUOTED.match(text, pos):
@@ -189,10 +189,18 @@ class _Parser:
         self.depth -= levels
         return f
 
-    def implies(self) -> Formula:
+    def implies(self, equiv: bool = False) -> Formula:
+        """``equiv``: the right side of a ``<->``, where another would make a chain, which
+        flloat and ltlf2dfa read as "all equal" and we would read as nested: refused."""
         lhs = self.disjunction()
         op = self.accept("->", "<->")
-        return _BINARY_OPS[op.kind](lhs, self.deeper(op, self.implies)) if op else lhs
+        if op is None:
+            return lhs
+        if equiv and op.kind == "<->":
+            raise LTLSyntaxError("a chain of <-> (flloat and ltlf2dfa read a <-> b <-> c as "
+                                 "'all three equal'): write (a <-> b) <-> c or a <-> (b <-> c)",
+                                 self.text, op.pos)
+        return _BINARY_OPS[op.kind](lhs, self.deeper(op, lambda: self.implies(op.kind == "<->")))
 
     def disjunction(self) -> Formula:
         args = [self.exclusive()]
@@ -246,8 +254,10 @@ class _Parser:
         if not (self.accept("$") or self.accept_word("inf") or self.tok.kind in ("!", "]")):
             tok = self.tok
             m = self.bound()
-            if m < n:
-                raise LTLSyntaxError(f"empty range {op.kind}[{n}:{m}]", self.text, tok.pos)
+            if m < n:  # Spot swaps the bounds; a reversed range is more likely a slip
+                raise LTLSyntaxError(f"empty range {op.kind}[{n}:{m}] (Spot reads it as "
+                                     f"{op.kind}[{m}:{n}]: write that if it is meant)",
+                                     self.text, tok.pos)
         strong = self.accept("!") is not None
         self.expect("]")
         return (lambda f: _bounded(op.kind, n, m, strong, f)), max(n + 1 if m is None else m, 1)

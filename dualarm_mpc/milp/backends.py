@@ -27,6 +27,7 @@ from pydrake.solvers import MathematicalProgram
 from dualarm_mpc.milp.solver import (
     MipStart,
     Outcome,
+    SizeLimit,
     SolveOptions,
     SolveResult,
     SolverUnavailable,
@@ -283,7 +284,7 @@ def gurobi(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Ou
             m.optimize(poll if stop is not None else None)
         except gp.GurobiError as err:
             if err.errno == gp.GRB.Error.SIZE_LIMIT_EXCEEDED:
-                raise SolverUnavailable(_over_limit("gurobi", f, GUROBI_LIMIT, rows)) from None
+                raise SizeLimit(_over_limit("gurobi", f, GUROBI_LIMIT, rows)) from None
             raise
         status = _GUROBI.get(m.Status, Status.ERROR)
         solved = m.SolCount > 0 and status in (Status.OPTIMAL, Status.TIME_LIMIT)
@@ -352,7 +353,7 @@ def cplex(f: StandardForm, options: SolveOptions, start: MipStart | None) -> Out
                     c.solve()
         except cpx.exceptions.CplexSolverError as err:
             if err.args[2] == _CPLEX_SIZE_LIMIT:
-                raise SolverUnavailable(_over_limit("cplex", f, CPLEX_LIMIT, len(keep))) from None
+                raise SizeLimit(_over_limit("cplex", f, CPLEX_LIMIT, len(keep))) from None
             raise
         sol = c.solution
         code = sol.get_status()

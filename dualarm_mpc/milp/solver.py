@@ -31,6 +31,11 @@ class SolverUnavailable(RuntimeError):
     its licence's size limit. The message is one line that says which and what to do."""
 
 
+class SizeLimit(SolverUnavailable):
+    """A model over the backend's licence's size limit: the caller, who knows which program
+    it built, says so (the consistency check's, and that solver.max_horizon sizes it)."""
+
+
 def installed_backends() -> list[str]:
     """The backends whose Python package is installed here (licences are not checked)."""
     return [name for name, (module, _) in BACKENDS.items()
@@ -89,6 +94,11 @@ class SolveOptions:
     cutoff: float = np.inf
     # Stops the solves under these options from another thread (a replan that ran out of time).
     interrupt: Interrupt | None = field(default=None, compare=False)
+
+    def stopped(self) -> bool:
+        """Whether a stop was requested (``interrupt``): polled by the loops outside the
+        solvers that can run long (the route bound, ``route.py``)."""
+        return self.interrupt is not None and self.interrupt.is_set()
 
 
 class WorkLimit:

@@ -26,6 +26,7 @@ Model (Δt = ``dt``; arm i = 0 is arm 1, the right arm; objects j):
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -149,17 +150,25 @@ class State:
                                np.asarray(self.grasp, float).ravel()])
 
     @staticmethod
-    def from_vector(x: np.ndarray, n_objects: int) -> State:
-        """The state of :meth:`vector` ``x`` (copied; the grasps rounded to 0/1)."""
+    def from_vector(x: np.ndarray, n_objects: int, where: str = "state vector") -> State:
+        """The state of :meth:`vector` ``x`` (copied; the grasps rounded to 0/1). A value that
+        is not finite is a ``ValueError`` naming ``where`` and its field (a replan would take a
+        NaN position for an object beyond reach)."""
         n = n_objects
         x = np.array(x, dtype=float)
         if x.shape != (State.size(n),):
-            raise ValueError(f"state vector: expected {State.size(n)} values, got {x.shape}")
+            raise ValueError(f"{where}: expected {State.size(n)} values, got {x.shape}")
         h = 2 * N_HANDS
-        return State(hand_pos=x[:h].reshape(N_HANDS, 2), hand_vel=x[h:2 * h].reshape(N_HANDS, 2),
-                     object_pos=x[2 * h:2 * h + 2 * n].reshape(n, 2),
-                     object_vel=x[2 * h + 2 * n:2 * h + 4 * n].reshape(n, 2),
-                     grasp=x[2 * h + 4 * n:].reshape(N_HANDS, n).round().astype(int))
+        state = State(hand_pos=x[:h].reshape(N_HANDS, 2), hand_vel=x[h:2 * h].reshape(N_HANDS, 2),
+                      object_pos=x[2 * h:2 * h + 2 * n].reshape(n, 2),
+                      object_vel=x[2 * h + 2 * n:2 * h + 4 * n].reshape(n, 2),
+                      grasp=x[2 * h + 4 * n:].reshape(N_HANDS, n))
+        for name, value in ((f.name, getattr(state, f.name)) for f in dataclasses.fields(state)):
+            bad = np.argwhere(~np.isfinite(value))
+            if bad.size:
+                raise ValueError(f"{where}: {name}[{', '.join(map(str, bad[0]))}] is "
+                                 f"{value[tuple(bad[0])]}, not a finite number")
+        return dataclasses.replace(state, grasp=state.grasp.round().astype(int))
 
     def select(self, objects: list[int]) -> State:
         """The state restricted to the given objects (hands unchanged)."""

@@ -51,6 +51,11 @@ MAX_TEXT_CHARS = 10_000
 # C(12, 6) = 924 build a program of T = 40 in 0.27 s, C(16, 8) = 12,870 in 2.3 s (measured), and
 # a step builds one per horizon tried, the search many more
 MAX_TASK_SUBSETS = 1000
+# The route bound of a step (model/route.py): m_o·2^m_o stages per hand and axis (m_o = 10:
+# 21 s and 400 MB, measured; each object more doubles both), over C(n_o, m_o)·2^m_o choices of
+# the objects delivered and the hand that first holds each (C(200, 2)·4 = 79,600)
+MAX_STEP_DELIVERIES = 10
+MAX_ROUTE_CHOICES = 100_000
 
 
 def ortools_installed() -> bool:
@@ -73,9 +78,12 @@ class Range:
     hi_open: bool = False
 
     def check(self, value: float, path: str) -> None:
+        if isinstance(value, float) and not math.isfinite(value):  # as a file's value is told
+            raise ScenarioError(f"{path}: expected a finite number, got "
+                                f"{_show(yamlcore.written(value))}")
         above = value > self.lo if self.lo_open else value >= self.lo
         below = value < self.hi if self.hi_open else value <= self.hi
-        if not (above and below):  # NaN too
+        if not (above and below):
             raise ScenarioError(f"{path}: must be {self}, got {_show(value)}")
 
     def __str__(self) -> str:
@@ -210,7 +218,13 @@ class Event:
     box: list[float] = field(default_factory=list, metadata=COORDINATE)
 
     def validate(self, path: str, task: Task) -> None:
-        """``path``: ``events[e]``; the target must be one of ``task``'s objects or goals."""
+        """``path``: ``events[e]``; the target must be one of ``task``'s objects or goals, and
+        the event gives its own kind's field only (the other would be ignored)."""
+        unused = {"move_object": ("box", self.box), "move_goal": ("position", self.position)}
+        name, value = unused.get(self.kind, ("", None))
+        if value:
+            raise ScenarioError(f"{path}.{name}: a {self.kind} event has no {name} (move_object "
+                                "takes position, move_goal takes box)")
         if self.kind == "move_object":
             if self.target not in {o.name for o in task.objects}:
                 raise ScenarioError(f"{path}.target: no object named {self.target!r}")
@@ -345,7 +359,7 @@ class Task:
     random_objects: RandomObjects | None = None
     seed: int = field(default=0, metadata=_in(0, 2**32 - 1))
     rule: int = 2
-    m_o: int = field(default=2, metadata=_in(1, MAX_OBJECTS))  # delivered per step (eq. 13)
+    m_o: int = field(default=2, metadata=_in(1, MAX_STEP_DELIVERIES))  # delivered per step (eq. 13)
     n_o: int = field(default=6, metadata=_in(1, MAX_OBJECTS))  # considered per step
     delivery: str = "reach"  # "reach" (paper, ◇θ) or "rest" (in the goal and at rest at T)
     task_form: str = "counting"  # "counting" (Σ ev_j ≥ m_o) or "subsets" (eq. 13 literally)
@@ -409,6 +423,11 @@ class Task:
                 f"task_form: subsets makes φ_task a disjunction of {subsets:,} subsets (m_o = "
                 f"{self.m_o} of n_o = {self.n_o}), more than {MAX_TASK_SUBSETS:,}; use "
                 "task_form: counting (the same task) or a smaller n_o")
+        if subsets * 2**self.m_o > MAX_ROUTE_CHOICES:
+            raise ScenarioError(
+                f"n_o: the route bound weighs {subsets * 2**self.m_o:,} choices of the objects "
+                f"delivered and their hands (C({min(self.n_o, len(self.objects))}, {self.m_o})"
+                f"·2^{self.m_o}), more than {MAX_ROUTE_CHOICES:,}; use a smaller n_o or m_o")
         for n, text in enumerate(self.rules):
             try:
                 parse(text)
@@ -471,18 +490,26 @@ class Scenario:
         robot, task, max_horizon = self.robot, self.task, self.solver.max_horizon
         xmin, xmax, ymin, ymax = robot.workspace
         step = robot.max_speed * robot.dt
-        for j, o in enumerate(task.objects):
-            (x, y), half = o.position, o.grasp_half_size
+        drawn = "" if task.random_objects is None else " (drawn from random_objects.region)"
+        by_name = {o.name: o for o in task.objects}
+        # (field, object, position, how it got there, whether its start): an object an event
+        # moves must stay where a hand can fetch it, as at its start
+        places = [(f"objects[{j}].position", o, o.position, f"at {o.position}{drawn}", True)
+                  for j, o in enumerate(task.objects)]
+        places += [(f"events[{e}].position", by_name[event.target], event.position,
+                    f"moved to {event.position} at t = {event.time:g} s", False)
+                   for e, event in enumerate(self.events) if event.kind == "move_object"]
+        for path, o, (x, y), how, start in places:
+            half = o.grasp_half_size
             gx0, gx1, gy0, gy1 = task.goals[o.goal]
             away = max(gx0 - x, x - gx1, gy0 - y, y - gy1, 0.0)  # per axis, as the speed bound
             reach = xmin - half <= x <= xmax + half and ymin - half <= y <= ymax + half
             if away > 0 and not reach:
-                drawn = "" if task.random_objects is None else " (drawn from random_objects.region)"
                 raise ScenarioError(
-                    f"objects[{j}].position: {o.name} at {o.position}{drawn} lies beyond the "
-                    f"hands' reach (workspace {robot.workspace} widened by its grasp_half_size "
-                    f"{half}) and outside its goal {o.goal}")
-            if away > step * max_horizon + 1e-9:
+                    f"{path}: {o.name} {how} lies beyond the hands' reach (workspace "
+                    f"{robot.workspace} widened by its grasp_half_size {half}) and outside its "
+                    f"goal {o.goal}")
+            if start and away > step * max_horizon + 1e-9:
                 raise ScenarioError(
                     f"dt: with dt = {robot.dt} s and max_speed = {robot.max_speed} m/s an object "
                     f"moves at most {step:.3g} m per step, {step * max_horizon:.3g} m in "
@@ -715,13 +742,15 @@ def _paths(data: dict) -> dict:
     return out
 
 
-def _yaml(text: str, where: str) -> dict:
+def _yaml(text: str, where: str, empty: str) -> dict:
+    """The flat mapping of fields in ``text``; none at all is an error saying ``empty`` (a file or
+    an override that sets nothing would be read as the defaults, silently)."""
     try:
         data = yamlcore.load(text, where)
     except yamlcore.YAMLInputError as err:
         raise ScenarioError(str(err)) from None
-    if data is None:
-        return {}
+    if data is None or data == {}:
+        raise ScenarioError(f"{where}: {empty}")
     if not isinstance(data, dict):
         raise ScenarioError(f"{where}: expected a mapping of scenario fields, got {_show(data)}")
     return _paths(data)
@@ -729,7 +758,7 @@ def _yaml(text: str, where: str) -> dict:
 
 def parse_override(text: str, where: str = "override") -> dict:
     """A YAML mapping of fields (or field paths) to values, e.g. ``solver.time_limit_s: 5``."""
-    return _yaml(text, where)
+    return _yaml(text, where, "sets nothing (give 'field: value', e.g. 'rule: 1')")
 
 
 def scenario_path(name_or_path: str) -> Path:
@@ -784,7 +813,8 @@ def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict
                             f"{err.object[err.start]:#04x})") from err
     except OSError as err:
         raise ScenarioError(f"{path}: cannot read it: {err.strerror}") from err
-    data = _yaml(text, str(path))
+    data = _yaml(text, str(path), "the file is empty (blank or comments only): a scenario "
+                 "needs at least goals and objects (docs/scenarios.md)")
     model = data.get("robot_model")
     if isinstance(model, str) and model and "://" not in model:  # relative to the file
         data["robot_model"] = str((path.parent / model).resolve())
@@ -807,7 +837,7 @@ def load_scenario(name_or_path: str, overrides: dict | str | Iterable[str | dict
 def apply_overrides(scenario: Scenario, overrides: dict | str | None) -> Scenario:
     """A copy of ``scenario`` with ``overrides`` applied, objects resolved, all checked."""
     scenario = copy.deepcopy(scenario)
-    overrides = _yaml(overrides, "override") if isinstance(overrides, str) else \
+    overrides = parse_override(overrides) if isinstance(overrides, str) else \
         _paths(overrides or {})
     task = scenario.task
     if overrides:
@@ -890,6 +920,31 @@ def random_objects(spec: RandomObjects, goal_names: list[str], seed: int) -> lis
         )
         for j, (x, y) in enumerate(xy)
     ]
+
+
+def seconds_problem(value) -> str | None:
+    """What is wrong with ``value`` as a span of seconds (a time limit, a duration), or None:
+    the one check of the command line's ``--time-limit`` and ``--duration`` and of the library's
+    ``MpcPlanner(time_limit_s=)`` and ``simulate(duration=)``, in the same words."""
+    if isinstance(value, bool) or not isinstance(value, int | float) \
+            or not (math.isfinite(value) and value > 0):
+        return f"must be a positive number of seconds, got {value}"
+    return None
+
+
+def check_goals(goals: dict, task: Task, where: str) -> None:
+    """``goals`` (name → box, e.g. a goals port's value) gives every goal an object of ``task``
+    is bound for a box [xmin, xmax, ymin, ymax] that is not empty: each error names ``where``
+    and the field."""
+    if not isinstance(goals, dict):
+        raise ScenarioError(f"{where}: expected a mapping of goal names to boxes, got "
+                            f"{_show(goals)}")
+    needed = [name for name in task.goals if any(o.goal == name for o in task.objects)]
+    for name in needed:
+        if name not in goals:
+            raise ScenarioError(f"{where}: goals.{name} is missing (the objects' goals: "
+                                f"{', '.join(needed)})")
+        _box(list(goals[name]), f"{where}: goals.{name}")
 
 
 def _box(value: list[float], path: str) -> None:

@@ -259,7 +259,7 @@ def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str
     named = [(name, parse(RULE_TEXT[name])) for name in RULES[rule]]
     seen, nodes, steps = set(), 0, scenario.solver.max_horizon + 1
     for n, text in enumerate(scenario.task.rules):
-        f = parse(text)
+        f = by_number(parse(text), scenario)
         nodes += check_rule(f, scenario, f"rules[{n}]")
         if nodes * steps > MAX_RULE_NODE_STEPS:
             raise ScenarioError(
@@ -273,6 +273,14 @@ def rule_formulas(scenario: Scenario, rule: int | None = None) -> list[tuple[str
     return named
 
 
+def by_number(f: Formula, scenario: Scenario) -> Formula:
+    """``f`` with each object index that is an object's name (``eta[1,cup]``, ``theta[cup]``)
+    replaced by that object's number: a name means its object, never a placeholder."""
+    numbers = {o.name: j + 1 for j, o in enumerate(scenario.task.objects)}
+    return rename_atoms(f, {a: Atom(a.name, (*a.index[:-1], numbers[a.index[-1]]))
+                            for a in atoms(f) if a.index and a.index[-1] in numbers})
+
+
 def check_rule(f: Formula, scenario: Scenario, where: str) -> int:
     """A user rule the planner can use, else :class:`~dualarm_mpc.model.scenario.ScenarioError`
     naming ``where``: known atoms over the scenario's hands and objects, no goal atom under a
@@ -281,7 +289,7 @@ def check_rule(f: Formula, scenario: Scenario, where: str) -> int:
     formula nodes."""
     n = scenario.n_objects
     for atom in sorted(atoms(f), key=str):
-        problem = _atom_problem(atom, n)
+        problem = _atom_problem(atom, n, [o.name for o in scenario.task.objects])
         if problem:
             raise ScenarioError(f"{where}: {problem}")
     for atom in sorted(negated_atoms(f), key=str):
@@ -311,8 +319,11 @@ _ATOMS = ("the atoms are eta[i,j] (hand i = 1 right, 2 left, grabs object j) and
          "(object j in its goal)")
 
 
-def _atom_problem(atom: Atom, n: int) -> str:
-    """What is wrong with ``atom`` in a rule over ``n`` objects, or ""."""
+def _atom_problem(atom: Atom, n: int, names: list[str]) -> str:
+    """What is wrong with ``atom`` in a rule over ``n`` objects (``names``), or "". An object
+    index that is a word, not an object's name (those are numbers by now), is neither an object
+    nor a placeholder: placeholders are one letter, so a misspelt name is never read as "every
+    object"."""
     arity = {"eta": 2, "theta": 1}.get(atom.name)
     if arity != len(atom.index):
         return f"unknown atom {atom}: {_ATOMS}, j = 1..{n}"
@@ -324,6 +335,10 @@ def _atom_problem(atom: Atom, n: int) -> str:
                 "(j, l, ...)")
     if isinstance(obj, int) and not 1 <= obj <= n:
         return f"{atom}: no object {obj} (objects 1..{n})"
+    if isinstance(obj, str) and len(obj) > 1:
+        shown = ", ".join(names[:10]) + (f", ... ({n} objects)" if n > 10 else "")
+        return (f"{atom}: {obj} is no object's name and no placeholder (one letter: j, l, ...); "
+                f"the objects: {shown}, or their numbers 1..{n}")
     return ""
 
 

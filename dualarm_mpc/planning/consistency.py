@@ -56,15 +56,16 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
 
 from dualarm_mpc.logic.ltl import TRUE, And, Eventually, Formula, Or, eta
 from dualarm_mpc.milp.horizon import HorizonProgram, solve_options
-from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.milp.solver import SizeLimit, SolveOptions, Status
 from dualarm_mpc.model.mld import Rect, State, delivered_objects, target_box
 from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.model.spec import (
@@ -74,7 +75,7 @@ from dualarm_mpc.model.spec import (
     rule_formulas,
     specification,
 )
-from dualarm_mpc.planning.sequential import select_objects
+from dualarm_mpc.planning.sequential import select_objects, within_cap
 
 JOINT_TIME_LIMIT_S = 20.0  # for the first step's program; beyond, "undecided"
 
@@ -147,7 +148,9 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
     """Check every object not yet resting in its goal on its own (in parallel, on
     ``solver.workers`` threads), then — if they all pass and ``joint`` — the first sequential
     step as a whole. ``progress(done, total)`` is called as each object's check ends (from the
-    worker threads), so that a long check can say how far it is."""
+    worker threads), so that a long check can say how far it is. ``scenario`` is checked first
+    as ``load_scenario`` checks it (:meth:`~dualarm_mpc.model.scenario.Scenario.validate`)."""
+    scenario.validate()
     state = State.initial(scenario) if state is None else state
     options = options or solve_options(scenario)
     T = scenario.solver.max_horizon
@@ -166,7 +169,7 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
             progress(next(done), len(todo))  # next() on a count is atomic under the GIL
         return verdict
 
-    with ThreadPoolExecutor(scenario.solver.workers) as pool:
+    with ThreadPoolExecutor(scenario.solver.workers) as pool, _named("one-object programs", T):
         verdicts = list(pool.map(one, todo))
     conflicts = tuple(v for v in verdicts if isinstance(v, Conflict))
     undecided = tuple(scenario.task.objects[j].name for j, v in zip(todo, verdicts, strict=True)
@@ -176,13 +179,24 @@ def check(scenario: Scenario, state: State | None = None, joint: bool = True,
         problem = StepProblem(scenario, state, spec)
         quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s,
                                                               JOINT_TIME_LIMIT_S))
-        status = _feasible(problem, quick)
         names = tuple(scenario.task.objects[j].name for j in first)
-        if status is Status.INFEASIBLE:
-            conflicts = (_joint_conflict(problem, names, quick),)
-        elif status is Status.TIME_LIMIT:
+        with _named("first step's program", T):
+            status = _feasible(problem, quick)
+            if status is Status.INFEASIBLE:
+                conflicts = (_joint_conflict(problem, names, quick),)
+        if status is Status.TIME_LIMIT:
             undecided = (f"the first step ({', '.join(names)})",)
     return Report(conflicts, undecided, T)
+
+
+@contextmanager
+def _named(program: str, T: int) -> Iterator[None]:
+    """A solver's size limit met in the block names the check's program and what sizes it."""
+    try:
+        yield
+    except SizeLimit as err:
+        raise SizeLimit(f"the consistency check's {program} (horizons up to solver.max_horizon "
+                        f"= {T}): {err}; a smaller solver.max_horizon makes them smaller") from None
 
 
 def _feasible(problem: StepProblem, options: SolveOptions, anywhere: bool = False) -> Status:
@@ -245,32 +259,38 @@ def _check_object(scenario: Scenario, state: State, j: int, named: list[tuple[st
     if status is not Status.INFEASIBLE:
         return status
     needed = _minimal(problem, options, anywhere)
-    # Does any hand ever hold it under these rules? (No task: m_o = 0.)
-    held = problem.with_spec(dataclasses.replace(needed, m_o=0, targets=(), rules=needed.rules + (
-        ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),)))
-    never_held = (bool(needed.rules)
-                  and _feasible(held, options, anywhere) is Status.INFEASIBLE)
+    # What the proof used: the rules alone (no task, m_o = 0) within the cap, or the rules
+    # against every grasp of j, or the rules with the task.
+    alone = dataclasses.replace(needed, m_o=0, targets=())
+    held = dataclasses.replace(alone, rules=alone.rules + (
+        ("held", Eventually(Or((eta(1, j + 1), eta(2, j + 1))))),))
+    cause = next((c for c, spec in (("alone", alone), ("never held", held)) if needed.rules and
+                  _feasible(problem.with_spec(spec), options, anywhere) is Status.INFEASIBLE),
+                 "")
     names = tuple(name for name, _ in needed.rules)
     return Conflict((scenario.task.objects[j].name,), names,
-                    _reason(scenario, j, names, never_held), _why(scenario, j, names, never_held))
+                    _reason(scenario, j, names, cause), _why(scenario, j, names, cause))
 
 
-def _reason(scenario: Scenario, j: int, rules: tuple[str, ...],
-            never_held: bool) -> str:
+def _reason(scenario: Scenario, j: int, rules: tuple[str, ...], cause: str) -> str:
     """Why object j cannot be delivered, in plain words."""
     obj = scenario.task.objects[j]
-    return f"{obj.name} → {obj.goal}: " + _why(scenario, j, rules, never_held)
+    return f"{obj.name} → {obj.goal}: " + _why(scenario, j, rules, cause)
 
 
-def _why(scenario: Scenario, j: int, rules: tuple[str, ...], never_held: bool) -> str:
-    """:func:`!_reason` without the object's name and goal."""
+def _why(scenario: Scenario, j: int, rules: tuple[str, ...], cause: str) -> str:
+    """:func:`!_reason` without the object's name and goal. ``cause``: "alone" where the rules
+    have no plan without the task, "never held" where they forbid every grasp of j, else ""."""
+    robot = scenario.robot
+    bounds = (f"steps of {robot.dt} s with |v| ≤ {robot.max_speed} and |u| ≤ {robot.max_force}")
     if not rules:
-        return (f"no plan brings it into its goal within {scenario.solver.max_horizon} "
-                       f"steps of {scenario.robot.dt} s with |v| ≤ {scenario.robot.max_speed} and "
-                       f"|u| ≤ {scenario.robot.max_force} (solver.max_horizon, dt, max_speed, "
-                       "max_force)")
+        return (f"no plan brings it into its goal {within_cap(scenario)} {bounds} (dt, "
+                "max_speed, max_force)")
     listed = " and ".join(rules)
-    if never_held:
+    if cause == "alone":
+        return (f"{listed} cannot hold at any horizon {within_cap(scenario)} {bounds}, whatever "
+                "the task (a rule that needs more steps needs a larger solver.max_horizon)")
+    if cause == "never held":
         return f"{listed} never let a hand hold it, and it is not in its goal"
     beyond = _beyond_reach(scenario, j)
     what = [FORBIDS.get(name, f"({name.split(' ', 1)[-1]})") for name in rules]
@@ -306,5 +326,5 @@ def _joint_conflict(problem: StepProblem, names: tuple[str, ...], options: Solve
     rules = tuple(name for name, _ in _minimal(problem, options).rules)
     said = " and ".join(rules) if rules else "the bounds alone"
     return Conflict(names, rules, f"{spec.m_o} of {', '.join(names)}: no plan delivers them "
-                    f"together within {scenario.solver.max_horizon} steps under {said}, though "
-                    "each one alone has a plan")
+                    f"together {within_cap(scenario)} under {said}, though each one alone has "
+                    "a plan")

@@ -73,7 +73,7 @@ from dualarm_mpc.model.mld import (
     standing,
 )
 from dualarm_mpc.model.plan import TimedTrajectory, empty_plan, sample_grasp, step_at
-from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.scenario import Scenario, seconds_problem
 from dualarm_mpc.model.spec import RULE_TEXT, StepProblem, rule_formulas, specification
 from dualarm_mpc.model.verify import atom_trace
 from dualarm_mpc.planning import delivery
@@ -149,6 +149,10 @@ class Replanner:
 
     def __init__(self, scenario: Scenario, time_limit_s: float | None = None,
                  solve: Solve | None = None) -> None:
+        problem = None if time_limit_s is None else seconds_problem(time_limit_s)
+        if problem:
+            raise ValueError(f"time_limit_s: {problem}")
+        scenario.validate()
         self._scenario = scenario
         self.realtime = scenario.solver.realtime
         self._options = solve_options(scenario, time_limit_s if self.realtime
@@ -348,7 +352,8 @@ class Replanner:
         wall0 = time.perf_counter()
         res = None
         problem = job.problem
-        for T in range(predict_horizon(problem), problem.scenario.solver.max_horizon + 1):
+        for T in range(predict_horizon(problem, job.options),
+                       problem.scenario.solver.max_horizon + 1):
             res = self._solve_horizon(problem, T, job.options, start=job.start)
             if res.status is not Status.INFEASIBLE or job.options.interrupt.is_set():
                 break

@@ -71,7 +71,7 @@ class Interrupted(Exception):
 
 
 def _stop_if_asked(options: SolveOptions | None) -> None:
-    if options is not None and options.interrupt is not None and options.interrupt.is_set():
+    if options is not None and options.stopped():
         raise Interrupted
 
 
@@ -89,12 +89,12 @@ def solve_horizon(problem: StepProblem, horizon: int, options: SolveOptions | No
     return search_step(problem, horizon, options, below, incumbent)
 
 
-def predict_horizon(problem: StepProblem) -> int:
+def predict_horizon(problem: StepProblem, options: SolveOptions | None = None) -> int:
     """predictT: the smallest horizon the reachability bound does not rule out (§IV-C.2) — the
     m_o-th smallest step at which an object of the step can first be in its goal — or, where
     no-throw (18) holds for every object of the step, the route bound of the hands
     (:func:`~dualarm_mpc.model.route.horizon_bound`) if larger: the horizons below either have no
-    plan."""
+    plan. A stop (``options.interrupt``) ends the route bound, which then says nothing."""
     scenario, state, spec = problem.scenario, problem.state, problem.spec
     objects = list(spec.objects)
     model = Model.from_scenario(scenario, objects)
@@ -103,7 +103,8 @@ def predict_horizon(problem: StepProblem) -> int:
     reach = reachability(model, local, cap)
     first = np.sort(reach.first_goal)
     no_throw = frozenset(objects.index(j) for j in spec.released_only_in_goal())
-    routes = horizon_bound(model, local, spec.m_o, no_throw, cap)
+    routes = horizon_bound(model, local, spec.m_o, no_throw, cap,
+                           options.stopped if options else None)
     return int(min(max(first[spec.m_o - 1], routes, 1), cap))
 
 
@@ -157,7 +158,7 @@ def witness(problem: StepProblem, options: SolveOptions | None) -> StepResult | 
     model = Model.from_scenario(scenario, objects)
     cap = scenario.solver.max_horizon
     if horizon_bound(model, state.select(objects), spec.m_o, frozenset(range(len(objects))),
-                     cap) > cap:
+                     cap, options.stopped if options else None) > cap:
         return None  # no route delivers m_o objects without a throw (§V-C's goals)
     # without the second prover: the witness's own horizons need no proofs
     alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
@@ -194,7 +195,7 @@ def below_witness(problem: StepProblem, found: StepResult, options: SolveOptions
     options = options or solve_options(problem.scenario)
     budget = STEP_BUDGET_SHARE * options.time_limit_s
     deadline = time.perf_counter() + budget
-    undecided = list(range(predict_horizon(problem), found.horizon + 1))
+    undecided = list(range(predict_horizon(problem, options), found.horizon + 1))
     left_open: set[int] = set()  # the horizons the search has left undecided once
     first = None  # the plan of the lowest horizon that has one
     slice_s = FIRST_SLICE_SHARE * budget
@@ -286,12 +287,12 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
     options = options or solve_options(scenario)
     first_slice = PROVER_FIRST_SLICE_SHARE * options.time_limit_s
     with second_prover(problem, options, first_slice, on_try) as prover:
-        for T in range(predict_horizon(problem), cap + 1):
+        for T in range(predict_horizon(problem, options), cap + 1):
             _stop_if_asked(options)
             if check_cap and time.perf_counter() - t0 >= CHECK_CAP_AFTER_S and T < cap:
                 check_cap = False  # once
                 if horizon_ruled_out(problem, cap, CAP_CHECK_TIME_S, options):
-                    raise PlanningError(diagnose(problem, None, options), proven=True)
+                    raise PlanningError(diagnose(problem, None, options, True), proven=True)
             res = solve_horizon(problem, T, options, below=below)
             _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
             if on_try:
@@ -309,7 +310,7 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
     if last is not None and last.status.has_solution:
         return dataclasses.replace(last, undecided=tuple(undecided),
                                    proofs=_shorter(proofs, last.horizon))
-    raise PlanningError(diagnose(problem, last, options), proven=not undecided)
+    raise PlanningError(diagnose(problem, last, options, not undecided), proven=not undecided)
 
 
 @contextmanager
@@ -358,16 +359,23 @@ class _NoProver:
         return {}
 
 
-def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOptions | None
-             ) -> str:
+def within_cap(scenario: Scenario) -> str:
+    """The horizon cap as the reasons name it: the field and its value."""
+    return f"within solver.max_horizon = {scenario.solver.max_horizon}"
+
+
+def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOptions | None,
+             proven: bool) -> str:
     """Why no plan exists within the horizon cap: which rules, dropped, make the task feasible
     (each decided at the cap: by the skeleton search's feasibility pass, or the monolithic MILP
-    stopped at its first solution)."""
+    stopped at its first solution). ``proven``: every horizon up to the cap was proven to have
+    no plan, which the reason says whether or not the rest is decided."""
     scenario, spec = problem.scenario, problem.spec
     T = scenario.solver.max_horizon
     objects = [scenario.task.objects[j].name for j in spec.objects]
-    status = f" (last status: {last.status.value})" if last else ""
-    head = f"no plan delivering {spec.m_o} of {objects} within horizon {T}{status}"
+    status = f" (last status: {last.status.value})" if last and not proven else ""
+    proof = ", proven for every horizon" if proven else ""
+    head = f"no plan delivering {spec.m_o} of {objects} {within_cap(scenario)}{proof}{status}"
     options = options or solve_options(scenario)
     quick = dataclasses.replace(options, time_limit_s=min(options.time_limit_s, 20.0),
                                 mip_rel_gap=1.0)
@@ -386,7 +394,8 @@ def diagnose(problem: StepProblem, last: StepResult | None, options: SolveOption
                 f"|v| <= {scenario.robot.max_speed} and |u| <= {scenario.robot.max_force}"
                 f"{apart} from this state")
     if not alone.has_solution:
-        return f"{head}: the solver could not decide the task alone within its time limit"
+        return (f"{head}; whether the task alone or the rules cause it was not decided within "
+                "the time limit (solver.time_limit_s)")
     culprits = [name for name, f in spec.rules if not feasible([(name, f)]).has_solution]
     if culprits:
         return f"{head}: the task conflicts with rule(s) {', '.join(culprits)}"

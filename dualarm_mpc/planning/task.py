@@ -51,7 +51,10 @@ def plan(scenario: Scenario, *, check_first: bool = True,
 
     Raises :class:`~dualarm_mpc.planning.sequential.PlanningError` when a step has no plan
     (``proven``: none exists up to the horizon cap), :class:`VerificationError` when the plan
-    fails verification. Returns the plan with ``verified`` true otherwise."""
+    fails verification. Returns the plan with ``verified`` true otherwise. ``scenario`` is
+    checked first as ``load_scenario`` checks it
+    (:meth:`~dualarm_mpc.model.scenario.Scenario.validate`)."""
+    scenario.validate()
     if check_first:
         report = check(scenario, joint=False)
         if report.conflicts:

@@ -43,6 +43,9 @@ from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.model.spec import Specification, StepProblem
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
+# A share is split into one program per order (m! of them) up to this many objects: 120 at five;
+# a larger share is solved whole (ten would be 3.6 million programs, and as many routes)
+SPLIT_MAX_OBJECTS = 5
 
 
 @dataclass(frozen=True)
@@ -170,9 +173,10 @@ class StepPrograms:
         held: every plan then delivers them one after another, and the program of each order
         is much tighter than the whole (no object is grabbed, or in its goal, before its
         order's route allows; for one object, that alone). None where the split does not
-        apply."""
+        apply, or the share has more than ``SPLIT_MAX_OBJECTS``."""
         local = tuple(self.local[j] for j in share)
-        if not share or not set(local) <= self.no_throw or not self.route(i, share):
+        if not share or len(share) > SPLIT_MAX_OBJECTS or not set(local) <= self.no_throw \
+                or not self.route(i, share):
             return None
         return orders(self.model, self.program.local_state, i, local, self.no_throw,
                       self.horizon)
@@ -181,7 +185,8 @@ class StepPrograms:
         """The route bound (``route.py``), counted up to the horizon: more steps than the
         horizon and hand i cannot deliver ``share`` in it, whatever the rest of the plan does."""
         return route_steps(self.model, self.program.local_state, i,
-                           tuple(self.local[j] for j in share), self.no_throw, self.horizon)
+                           tuple(self.local[j] for j in share), self.no_throw, self.horizon,
+                           self.stopped)
 
     def mask(self, pairs: Iterable[tuple[int, int]]) -> np.ndarray:
         """The pairs (hand, object) whose η may be 1 after the first step."""

@@ -26,7 +26,7 @@ from pydrake.systems.framework import Context, EventStatus
 
 from dualarm_mpc.base import outputs
 from dualarm_mpc.model.mld import REST_SPEED, at_rest, delivered_objects
-from dualarm_mpc.model.scenario import Event, Scenario, ScenarioError
+from dualarm_mpc.model.scenario import Event, Scenario, ScenarioError, seconds_problem
 from dualarm_mpc.planning.mpc import Replan, Solve
 from dualarm_mpc.sim import recording
 from dualarm_mpc.sim.diagram import DualArm, MakeDiagram
@@ -336,6 +336,10 @@ def simulate(scenario: Scenario, duration: float | None = None, html: str | Path
     ``record_contacts``: draw and record the contact forces and the proximity and inertia
     geometry too (by default only what a person sees).
     An event at or after the end is a ``ScenarioError`` (:func:`check_events`)."""
+    problem = None if duration is None else seconds_problem(duration)
+    if problem:
+        raise ScenarioError(f"duration: {problem}")
+    scenario.validate()
     duration = default_duration(scenario) if duration is None else duration
     check_events(scenario, duration)
     live = meshcat is not None

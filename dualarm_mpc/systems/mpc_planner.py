@@ -26,7 +26,7 @@ from pydrake.systems.framework import LeafSystem
 
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.plan import TimedTrajectory
-from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.scenario import Scenario, check_goals
 from dualarm_mpc.planning.mpc import MpcState, Replan, Replanner, Solve
 from dualarm_mpc.systems.trajectories import grasp_schedule, hand_trajectory, object_trajectory
 
@@ -69,7 +69,7 @@ class MpcPlanner(LeafSystem):
     def __init__(self, scenario: Scenario, time_limit_s: float | None = None,
                  solve: Solve | None = None):
         super().__init__()
-        self._n = scenario.n_objects
+        self._n, self._task = scenario.n_objects, scenario.task
         self._replanner = Replanner(scenario, time_limit_s, solve)
         initial = self._replanner.initial_state()
         self._state = self.DeclareAbstractState(AbstractValue.Make(initial))
@@ -171,6 +171,14 @@ class MpcPlanner(LeafSystem):
             return pending[1], None
         return self.mpc_state(context), pending
 
+    def _inputs(self, context) -> tuple[State, dict]:
+        """The measured state and the goals at the input ports, checked: a value that is not
+        finite, a goal missing or an empty box raises here, naming the port and the field (a
+        replan would report it as an infeasible task)."""
+        goals = self._goals.Eval(context)
+        check_goals(goals, self._task, "goals")
+        return State.from_vector(self._measured.Eval(context), self._n, "measured_state"), goals
+
     def _take_over(self, context, state) -> None:
         current, pending = self._in_force(context)
         state.get_mutable_abstract_state(self._state).set_value(current)
@@ -180,9 +188,9 @@ class MpcPlanner(LeafSystem):
         """Real time: the first replan, waited for up to one solve's time limit, before the
         simulator's clock starts (Drake measures the real-time rate from the end of
         ``Initialize``)."""
-        measured = State.from_vector(self._measured.Eval(context), self._n)
+        measured, goals = self._inputs(context)
         new, replan = self._replanner.step(context.get_time(), self.mpc_state(context), measured,
-                                           self._goals.Eval(context), wait=True)
+                                           goals, wait=True)
         state.get_mutable_abstract_state(self._state).set_value(new)
         state.get_mutable_abstract_state(self._last).set_value(replan)
 
@@ -193,9 +201,8 @@ class MpcPlanner(LeafSystem):
         if last is not None and last.t == t:  # made at initialization, at this very time
             return
         current, _ = self._in_force(context)
-        measured = State.from_vector(self._measured.Eval(context), self._n)
-        new, replan = self._replanner.step(t, current, measured, self._goals.Eval(context),
-                                           self.latency_s)
+        measured, goals = self._inputs(context)
+        new, replan = self._replanner.step(t, current, measured, goals, self.latency_s)
         pending = None if self.latency_s == 0 else (t + self.latency_s, new)
         state.get_mutable_abstract_state(self._state).set_value(new if pending is None
                                                                 else current)
