@@ -27,7 +27,7 @@ from dualarm_mpc.model.scenario import (
 
 
 def test_builtin_names() -> None:
-    assert set(BUILTIN) == {"table1_vc", "table1_vd"}
+    assert set(BUILTIN) == {"table1_vc", "table1_vd", "panda_vc", "panda_vd"}
 
 
 def test_table1_vc_is_the_papers_section_vc() -> None:
