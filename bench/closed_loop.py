@@ -27,8 +27,9 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
   ``object_contacts``, from the plant's contact results every 20 ms): a box shoved by another.
 
 * **any robot** (issue 50) — ``--scenes table1_vd panda_vd table1_vc panda_vc`` runs each scene
-  on our SCARA and on the Panda pair (docs/robots.md): the wall time of the same task with the
-  differential IK against the closed form, the arms' clearance, the hands' depth into boxes, and
+  on our SCARA and on the Panda pair (docs/robots.md), one after the other for each (rule,
+  seed): the wall and CPU time of the same task with the differential IK against the closed
+  form (``cpu_time_s``: the process's, threads included), the arms' clearance, the hands' depth into boxes, and
   the largest distance from a hand to the box it held (``max_held_offset_m``);
 * **on the clock** (issue 49) — ``--scenes table1_vc table1_vd`` runs §V-C (rule 2 only: rule 1
   cannot throw to its unreachable goals) beside §V-D; ``--busy N`` keeps N other processes busy
@@ -61,6 +62,7 @@ import argparse
 import contextlib
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -188,7 +190,9 @@ def run_one(rule: int, seed: int, args: argparse.Namespace, scene: str = SCENARI
         record["n_objects"] = scenario.n_objects
         record["objects"] = [{"name": o.name, "position": o.position, "goal": o.goal}
                              for o in scenario.task.objects]
+        cpu0 = _cpu_time()
         summary = simulate(scenario, args.duration, progress=progress)
+        record["cpu_time_s"] = round(_cpu_time() - cpu0, 2)
     except Exception:  # a bug in one run must not end the bench: record it and go on
         record["message"] = traceback.format_exc(limit=4)
         record["wall_time_s"] = time.perf_counter() - t0
@@ -202,6 +206,13 @@ def run_one(rule: int, seed: int, args: argparse.Namespace, scene: str = SCENARI
         replans_over_dt=sum(r["wall_s"] > scenario.robot.dt for r in solves),
     )
     return record
+
+
+def _cpu_time() -> float:
+    """CPU seconds of this process, its threads (HiGHS's) included: what a run costs, which
+    other work on the machine does not change as it does the wall time."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def replan_log(summary) -> list[dict]:
@@ -389,9 +400,12 @@ def busy(n: int):
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    tasks = [(scene, rule, seed) for scene in args.scenes
-             for rule in (args.rules if scene in VD_SCENES else [2])
-             for seed in (args.seeds if scene in VD_SCENES else [0])]
+    # scene after scene for each (rule, seed): the same task on two robots runs under the same
+    # load of the machine
+    tasks = sorted(((scene, rule, seed) for scene in args.scenes
+                    for rule in (args.rules if scene in VD_SCENES else [2])
+                    for seed in (args.seeds if scene in VD_SCENES else [0])),
+                   key=lambda t: (t[0] not in VD_SCENES, t[1], t[2]))
     info = machine()
     records: list[dict] = []
     t0 = time.perf_counter()
