@@ -29,8 +29,9 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
 * **any robot** (issue 50) — ``--scenes table1_vd panda_vd table1_vc panda_vc`` runs each scene
   on our SCARA and on the Panda pair (docs/robots.md), one after the other for each (rule,
   seed): the wall and CPU time of the same task with the differential IK against the closed
-  form (``cpu_time_s``: the process's, threads included), the arms' clearance, the hands' depth into boxes, and
-  the largest distance from a hand to the box it held (``max_held_offset_m``);
+  form (``cpu_time_s``: the process's, threads included), the arms' clearance, the hands'
+  depth into boxes, and the largest distance from a hand to the box it held
+  (``max_held_offset_m``);
 * **on the clock** (issue 49) — ``--scenes table1_vc table1_vd`` runs §V-C (rule 2 only: rule 1
   cannot throw to its unreachable goals) beside §V-D; ``--busy N`` keeps N other processes busy
   (a loop each, ended with the bench) to measure a loaded machine; each run records its

@@ -259,8 +259,8 @@ ROBOT_PAIRS = {"panda_vd": "table1_vd", "panda_vc": "table1_vc"}
 def render_robots(results: Path) -> str:
     """Any robot (issue 50): each scene on our SCARA and on the Panda pair, closed loop: objects
     at rest in their goals, the run's wall time, and the Panda's wall and CPU time against the
-    SCARA's on the same task (run one after the other), the arms' least clearance, the deepest hand into a box, the farthest a held box's centre
-    strayed from its tool."""
+    SCARA's on the same task (run one after the other), the arms' least clearance, the deepest
+    hand into a box, the farthest a held box's centre strayed from its tool."""
     data = load(results, ROBOTS_RECORD)
     ok = {(r["scene"], r["rule"], r["seed"]): r for r in data["runs"] if r["status"] == "ok"}
     rows = []
