@@ -277,8 +277,8 @@ def render_robots(results: Path) -> str:
             "—" if r.get("max_held_offset_m") is None
             else f"{1000 * r['max_held_offset_m']:.1f}"])
     header = ["scene", "rule", "seed", "at rest in their goals", "simulated s", "wall s",
-              "wall against the SCARA's", "CPU against the SCARA's", "arms apart (cm)", "hand into a box (mm)",
-              "held box from its tool (mm)"]
+              "wall against the SCARA's", "CPU against the SCARA's", "arms apart (cm)",
+              "hand into a box (mm)", "held box from its tool (mm)"]
     return table(header, rows) + "\n\n- " + provenance(ROBOTS_RECORD, data, commit=False) + "\n"
 
 
