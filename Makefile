@@ -30,7 +30,7 @@ $(VENV)/.installed-test: pyproject.toml
 demo: $(VENV)/.installed-base
 	mkdir -p $(OUT)
 	$(BIN)/dualarm-mpc plan table1_vc --rule 2 --set 'goal_margin: 0.03' --set 'goal_slots: true' \
-		--set 'object_clearance: 0.01' --set 'grasp_tolerance: 0.025' --out $(OUT)/plan.json \
+		--set 'object_clearance: 0.01' --set 'grasp_tolerance: 0.0065' --out $(OUT)/plan.json \
 		--plot $(OUT)/plan.png
 	$(BIN)/dualarm-mpc simulate table1_vc --rule 2 --html $(OUT)/replay.html \
 		--summary $(OUT)/summary.json --plot $(OUT)/run.png

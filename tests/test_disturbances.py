@@ -70,17 +70,20 @@ def test_objects_beyond_the_grasp_range_are_stuck_unless_in_their_goal(rule) -> 
 
 
 def test_rule_1_without_regrasp_an_object_at_the_far_edge_cannot_reach_a_far_goal() -> None:
-    """Green's target box starts at y = 0.88; the hands stop at y = 0.9. An object grasped at
-    y = -0.3225 (hand at -0.3 at best: offset -0.0225, within the on-robot grasp box of 0.025)
-    can be carried to y = 0.8775 at most — with no release outside the goal (rule 1) there is no
-    regrasp. Rule 2 may put it down and regrasp."""
-    p = np.array([0.0, -0.3225])
-    j = index_of_goal(vd(1), "green")
-    assert dist.stuck_reason(vd(1), vd(1).task.goals, j, p) == \
+    """Green's target box starts at y = 0.88; the hands stop at y = 0.9. With the paper's grasp
+    box (5 cm, not the on-robot one), an object grasped at y = -0.34 (hand at -0.3 at best:
+    offset -0.04) can be carried to y = 0.86 at most — with no release outside the goal (rule 1)
+    there is no regrasp. Rule 2 may put it down and regrasp."""
+    p = np.array([0.0, -0.34])
+    one, two = (load_scenario("table1_vd", {**on_robot_overrides(load_scenario("table1_vd")),
+                                            "rule": rule, "grasp_tolerance": None})
+                for rule in (1, 2))
+    j = index_of_goal(one, "green")
+    assert dist.stuck_reason(one, one.task.goals, j, p) == \
         "rule 1: no single grasp carries it into its goal"
-    assert dist.stuck_reason(vd(2), vd(2).task.goals, j, p) is None
-    red = index_of_goal(vd(1), "red")
-    assert dist.stuck_reason(vd(1), vd(1).task.goals, red, p) is None  # red reaches down to 0.68
+    assert dist.stuck_reason(two, two.task.goals, j, p) is None
+    red = index_of_goal(one, "red")
+    assert dist.stuck_reason(one, one.task.goals, red, p) is None  # red reaches down to 0.68
 
 
 def test_the_hand_gap_of_eq_16_leaves_each_edge_to_one_hand_only() -> None:

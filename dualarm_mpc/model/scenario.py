@@ -779,11 +779,12 @@ def scenario_path(name_or_path: str) -> Path:
 # one carried or sliding keeps 1 cm from every other (docs/formulation.md, (C1)-(C3); without,
 # the boxes of `make demo` touched in 4 pairs, a dragged one shoving another 8 cm). 1 cm is what
 # the slots leave between neighbours (2·goal_margin − object_size). The hand holds a box with its
-# tool on the top face, so the grasp box shrinks to half the box (``grasp_tolerance``). Lengths
+# tool near the middle of its top face: the grasp box shrinks to 0.13 of the box, so that a held
+# box's centre stays within 1 cm of the tool (0.0065·√2 m on a 5 cm box). Lengths
 # are in object sizes, the 5 cm box of Table II's scenes: a robot of smaller reach carries the
 # same scene scaled down (docs/robots.md).
 ON_ROBOT = {"delivery": "rest", "goal_slots": True}
-ON_ROBOT_SIZES = {"goal_margin": 0.6, "object_clearance": 0.2, "grasp_tolerance": 0.5}
+ON_ROBOT_SIZES = {"goal_margin": 0.6, "object_clearance": 0.2, "grasp_tolerance": 0.13}
 
 
 def on_robot_overrides(scenario: Scenario) -> dict:
