@@ -11,7 +11,7 @@ comments, the first naming what it shows::
 
 A file name renders that file as its bench's own report does (``--summarize``), the bench told
 by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, ``horizons``,
-``demo``, ``install``); ``paper`` is Table II of the paper beside ours, pooled over every
+``demo``, ``install``, ``whole``); ``paper`` is Table II of the paper beside ours, pooled over every
 ``table2*.json``; ``clearance`` is what ``object_clearance`` costs and saves, from
 ``table2-m2-apart.json`` and the two closed-loop records (``closed_loop.json``: objects apart,
 ``closed_loop-points.json``); ``clock`` is the closed loop on the clock, one row per
@@ -42,7 +42,8 @@ from benchlib import fmt, table
 
 ROOT = Path(__file__).resolve().parent.parent
 BLOCK = re.compile(r"(<!-- report (\S+) -->\n)(.*?)(<!-- /report -->)", re.DOTALL)
-BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons", "demo", "install")
+BENCHES = ("table2", "solvers", "closed_loop", "robustness", "horizons", "demo", "install",
+           "whole")
 
 
 class RecordError(Exception):
