@@ -56,10 +56,10 @@ def count(minimum: int):
 
 def objects_per_step(text: str) -> int | str:
     """``--mo``: a count, or ``all`` (m_o = n_o = every object of the scenario)."""
-    if text == ALL or not text.lstrip("+-").isdigit():
-        if text != ALL:
-            raise argparse.ArgumentTypeError(f"expected an integer or all, got {text!r}")
+    if text == ALL:
         return ALL
+    if not text.lstrip("+-").isdigit():
+        raise argparse.ArgumentTypeError(f"expected an integer or all, got {text!r}")
     return count(1)(text)
 
 
