@@ -56,6 +56,7 @@ _EXPORTS = {
     "plan": "dualarm_mpc.planning.task",
     "ConflictError": "dualarm_mpc.planning.task",
     "VerificationError": "dualarm_mpc.planning.task",
+    "whole_task": "dualarm_mpc.planning.task",
     "simulate": "dualarm_mpc.sim.closed_loop",
 }
 
@@ -89,6 +90,7 @@ __all__ = [
     "plot_timeline",
     "simulate",
     "timeline_figure",
+    "whole_task",
 ]  # = _EXPORTS (tests/test_api.py)
 
 if TYPE_CHECKING:  # what a type checker and an IDE see; at run time __getattr__ loads them
@@ -106,7 +108,7 @@ if TYPE_CHECKING:  # what a type checker and an IDE see; at run time __getattr__
     )
     from dualarm_mpc.planning.consistency import check
     from dualarm_mpc.planning.sequential import PlanningError
-    from dualarm_mpc.planning.task import ConflictError, VerificationError, plan
+    from dualarm_mpc.planning.task import ConflictError, VerificationError, plan, whole_task
     from dualarm_mpc.sim.closed_loop import RunLog, Summary, simulate
     from dualarm_mpc.sim.diagram import MakeDiagram
     from dualarm_mpc.sim.disturbances import knock, move_goal

@@ -100,6 +100,8 @@ CASES = [
     (["simulate", "base.yaml", "--duration", "-1"], "argument --duration: must be a positive"),
     (["plan", "base.yaml", "--seed", "-1"], "argument --seed: must be >= 0"),
     (["plan", "base.yaml", "--mo", "0"], "argument --mo: must be >= 1"),
+    (["plan", "base.yaml", "--mo", "every"], "argument --mo: expected an integer or all"),
+    (["plan", "base.yaml", "--gap", "2"], "argument --gap: must be between 0 and 1"),
     (["plan", "base.yaml", "--rule", "3"], "argument --rule: invalid choice"),
     (["plan", "base.yaml", "--time-limit", "-5"], "argument --time-limit: must be a positive"),
     (["plan", "base.yaml", "--set", "max_speed: [1"], "--set 'max_speed: [1':2: not valid YAML"),

@@ -406,3 +406,21 @@ def test_drakes_irrelevant_log_lines_are_dropped_at_the_source(caplog) -> None:
                       "deformable contact; registration is allowed")
         drake.warning("something else")
     assert [r.getMessage() for r in caplog.records] == ["something else"]
+
+
+def test_plan_mo_all_plans_every_object_in_one_step_with_its_certificate(tmp_path,
+                                                                         capsys) -> None:
+    """``--mo all``: m_o = n_o = every object, one search; ``--gap`` is solver.mip_rel_gap;
+    the certificate is printed and written (docs/formats.md)."""
+    path = tmp_path / "s.yaml"
+    path.write_text(SCENARIO)
+    out = tmp_path / "plan.json"
+    assert main(["plan", str(path), "--mo", "all", "--gap", "0.01", "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "(m_o, n_o) = (3, 3)" in stdout and "certificate: cost " in stdout
+    data = json.loads(out.read_text())
+    first = data["segments"][0]
+    assert first["objects"] == [0, 1, 2] and first["gap"] <= 0.01
+    assert first["bound"] <= first["cost"] and first["search_stats"]["expansions"] >= 1
+    assert data["first_plan_s"] >= data["total_solve_time_s"] - 1e-3
+    assert data["total_bound"] == pytest.approx(sum(s["bound"] for s in data["segments"]))

@@ -95,7 +95,7 @@ def test_plan_round_trips_through_json(two_object_plan, tmp_path) -> None:
     assert verify(scenario, q).ok
     assert q.segments == [
         dataclasses.replace(s, solve_time_s=round(s.solve_time_s, 4), cost=round(s.cost, 9),
-                            cpu_time_s=round(s.cpu_time_s, 4))
+                            cpu_time_s=round(s.cpu_time_s, 4), bound=round(s.bound, 9))
         for s in p.segments
     ]
 

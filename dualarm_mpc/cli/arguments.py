@@ -24,9 +24,10 @@ def scenario_overrides(args: argparse.Namespace) -> dict:
     for flag, field in (("rule", "rule"), ("mo", "m_o"), ("no", "n_o"), ("seed", "seed"),
                         ("delivery", "delivery")):
         value = getattr(args, flag, None)
-        if value is not None:
+        if value is not None and value != ALL:  # --mo all: once the objects are known
             out[field] = value
     solver = {key: value for key, value in (("time_limit_s", getattr(args, "time_limit", None)),
+                                            ("mip_rel_gap", getattr(args, "gap", None)),
                                             ("search", getattr(args, "search", None)),
                                             ("backend", getattr(args, "solver", None)))
               if value is not None}
@@ -35,6 +36,9 @@ def scenario_overrides(args: argparse.Namespace) -> dict:
     for text in args.set or []:
         merge_overrides(out, parse_override(text, f"--set {text!r}"))
     return out
+
+
+ALL = "all"  # --mo all: every object in one step (task.whole_task)
 
 
 def count(minimum: int):
@@ -48,6 +52,25 @@ def count(minimum: int):
         return value
 
     return count
+
+
+def objects_per_step(text: str) -> int | str:
+    """``--mo``: a count, or ``all`` (m_o = n_o = every object of the scenario)."""
+    if text == ALL:
+        return ALL
+    if not text.lstrip("+-").isdigit():
+        raise argparse.ArgumentTypeError(f"expected an integer or all, got {text!r}")
+    return count(1)(text)
+
+
+def fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a relative gap, got {text!r}") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1, got {text}")
+    return value
 
 
 def seconds(text: str) -> float:
@@ -138,11 +161,16 @@ def paths_problem(args: argparse.Namespace) -> str | None:
 def scenario_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", help="a scenario YAML file, or table1_vc / table1_vd")
     p.add_argument("--rule", type=int, choices=(1, 2), help="1: no-throw; 2: no-juggle, no-swap")
-    p.add_argument("--mo", type=count(1), help="m_o, objects delivered per sequential step")
+    p.add_argument("--mo", type=objects_per_step,
+                   help="m_o, objects delivered per sequential step; all: every object in one "
+                   "search (sets n_o too)")
     p.add_argument("--no", type=count(1), help="n_o, objects considered per sequential step")
     p.add_argument("--seed", type=count(0), help="seed of random objects (table1_vd)")
     p.add_argument("--delivery", choices=("reach", "rest"), help="what 'delivered' means")
     p.add_argument("--time-limit", type=seconds, help="seconds per horizon of a step")
+    p.add_argument("--gap", type=fraction,
+                   help="stop a step's optimisation at this relative gap (solver.mip_rel_gap; "
+                   "the plan reports the gap it proved)")
     p.add_argument("--search", choices=("skeleton", "monolithic"),
                    help="solve each horizon by the skeleton search (default) or as one MILP")
     p.add_argument("--solver", choices=SOLVER_BACKENDS,

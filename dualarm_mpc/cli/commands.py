@@ -10,7 +10,7 @@ from pathlib import Path
 
 from dualarm_mpc.base import outputs
 from dualarm_mpc.cli import process
-from dualarm_mpc.cli.arguments import scenario_overrides
+from dualarm_mpc.cli.arguments import ALL, scenario_overrides
 from dualarm_mpc.cli.process import (
     CONFLICT,
     FAILED,
@@ -65,6 +65,10 @@ def _load(args: argparse.Namespace, first: dict | None = None, on_robot: bool = 
     overrides = [first or {}, scenario_overrides(args)]
     scenario = interruptible(lambda: load_scenario(args.scenario, overrides, on_robot=on_robot),
                              tick=heartbeat("reading the scenario"))
+    if getattr(args, "mo", None) == ALL:
+        from dualarm_mpc.planning.task import whole_task
+
+        scenario = whole_task(scenario)
     if scenario.robot.robot_model is not None:  # before any planning (docs/robots.md)
         from dualarm_mpc.sim.reach import check_robot
 
@@ -215,7 +219,18 @@ def cmd_plan(args: argparse.Namespace) -> int:
         return FAILED
     print("verified: the replayed trace satisfies every step's specification; "
           "every object rests in its goal")
+    print(certificate(result))
     return _failed_writes(OK, written)
+
+
+def certificate(result) -> str:
+    """The plan's certificate in one line: its cost against its proven bound, whether every
+    step's horizon is proven minimal, and when the first verified plan existed."""
+    minimal = ("every step's horizon proven minimal" if result.horizon_proven_minimal else
+               "not every step's horizon proven minimal")
+    return (f"certificate: cost {result.total_cost:.3f}, proven bound {result.total_bound:.3f} "
+            f"(gap {100 * result.gap:.2f} %), {minimal}; first verified plan after "
+            f"{result.first_plan_s:.2f} s")
 
 
 def _exported(export, args: argparse.Namespace) -> bool:

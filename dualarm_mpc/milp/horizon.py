@@ -67,6 +67,9 @@ class StepResult:
     passed_over: tuple[int, float] | None = None
     # The pairs of objects whose (C1)–(C2) rows the solve needed (HorizonProgram._solve_apart)
     apart: frozenset[tuple[int, int]] = frozenset()
+    # Of the skeleton search: its work (subprograms.SearchStats.record); of a step's plan, the
+    # sum over the step's horizons (sequential.plan_step)
+    search_stats: dict | None = None
 
     @property
     def minimal(self) -> bool:

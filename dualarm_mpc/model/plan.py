@@ -96,6 +96,12 @@ class Segment:
     horizons_undecided: list[int] = field(default_factory=list)
     # [horizon, cost]: a shorter horizon's plan the step passed over, its witness being cheaper
     shorter_plan: list | None = None
+    # A proven lower bound of the cost (17) of every plan of the step at its horizon: the
+    # certificate beside ``cost`` and ``gap`` (0, trivially, in files written before it)
+    bound: float = 0.0
+    # The skeleton search's work on the step's horizon, where a search ran
+    # (``skeleton.SearchStats``): nodes expanded, nodes pruned, seconds in leaf programs
+    search_stats: dict | None = None
 
     def to_json(self) -> dict:
         """The step as an entry of the plan file's ``segments`` (docs/formats.md)."""
@@ -117,6 +123,8 @@ class Segment:
             "horizons_undecided": self.horizons_undecided,
             "shorter_plan": None if self.shorter_plan is None else
             [self.shorter_plan[0], round(self.shorter_plan[1], 9)],
+            "bound": round(self.bound, 9),
+            "search_stats": self.search_stats,
         }
 
     @property
@@ -150,10 +158,31 @@ class Plan:
     search: str = "skeleton"  # how each step was solved: "skeleton" or "monolithic"
     # The steps completed before an interrupt or an error: not every object is delivered.
     partial: bool = False
+    # Wall seconds from the start of planning until a complete plan delivering every object
+    # existed and passed verification (``task.plan``); None where none did
+    first_plan_s: float | None = None
 
     @property
     def total_cost(self) -> float:
         return float(sum(s.cost for s in self.segments))
+
+    @property
+    def total_bound(self) -> float:
+        """The steps' proven lower bounds summed: no plan of the same steps, each from the
+        state it started in and at its horizon, costs less. Of a whole-task plan (one step,
+        ``--mo all``) it bounds every plan of the task at that horizon."""
+        return float(sum(s.bound for s in self.segments))
+
+    @property
+    def gap(self) -> float:
+        """(total cost − total bound) / total cost: 0 where every step is proven optimal."""
+        cost = self.total_cost
+        return max(0.0, (cost - self.total_bound) / cost) if cost > 0 else 0.0
+
+    @property
+    def horizon_proven_minimal(self) -> bool:
+        """Every step's horizon is proven minimal (Segment.horizon_proven_minimal)."""
+        return all(s.horizon_proven_minimal for s in self.segments)
 
     @property
     def total_solve_time_s(self) -> float:
@@ -180,6 +209,10 @@ class Plan:
             "total_cpu_time_s": round(self.total_cpu_time_s, 4),
             "search": self.search,
             "partial": self.partial,
+            "total_bound": round(self.total_bound, 9),
+            "gap": round(self.gap, 9),
+            "horizon_proven_minimal": self.horizon_proven_minimal,
+            "first_plan_s": None if self.first_plan_s is None else round(self.first_plan_s, 4),
         }
 
     def save(self, path: str | Path) -> None:
@@ -201,6 +234,7 @@ class Plan:
             verified=data.get("verified", False),
             search=data.get("search", "monolithic"),
             partial=data.get("partial", False),
+            first_plan_s=data.get("first_plan_s"),
         )
 
     @staticmethod

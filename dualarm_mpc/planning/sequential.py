@@ -24,7 +24,7 @@ from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.model.spec import StepProblem, rule_formulas, specification, with_no_throw
 from dualarm_mpc.search.relaxations import Key
 from dualarm_mpc.search.skeleton import horizon_has_plan, horizon_ruled_out, search_step
-from dualarm_mpc.search.subprograms import satisfies
+from dualarm_mpc.search.subprograms import SearchStats, satisfies
 
 # Seconds a step may go without a plan before the largest horizon is checked (plan_step): the
 # check costs up to CAP_CHECK_TIME_S, wasted when the step has a plan, so only a step that has
@@ -131,25 +131,37 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
     (the skeleton search's default): first the no-throw witness (:func:`witness`), then
     Algorithm 1 on the horizons below its T₁ within one budget for the step, its plan taken
     where it is cheaper than the witness (:func:`below_witness`); the step's plan is never
-    worse than its witness."""
+    worse than its witness.
+
+    The result's ``search_stats`` add up the skeleton search's work over every horizon the
+    step searched, the witness's included (None under the monolithic MILP)."""
     t0 = time.perf_counter()
     found = None
     solver = problem.scenario.solver
+    stats = SearchStats.Sum()
+
+    def tried(res: StepResult) -> None:
+        stats.add(res.search_stats)
+        if on_try:
+            on_try(res)
+
     if solver.horizons == "witness" and solver.search == "skeleton":
-        found = witness(problem, options)
+        found = witness(problem, options, lambda res: stats.add(res.search_stats))
     if found is None:
-        res = first_plan(problem, options, on_try)
+        res = first_plan(problem, options, tried)
     else:
-        res = below_witness(problem, found, options, on_try)
-    return res, time.perf_counter() - t0
+        res = below_witness(problem, found, options, tried)
+    return dataclasses.replace(res, search_stats=stats.record()), time.perf_counter() - t0
 
 
-def witness(problem: StepProblem, options: SolveOptions | None) -> StepResult | None:
+def witness(problem: StepProblem, options: SolveOptions | None,
+            on_try: Callable[[StepResult], None] | None = None) -> StepResult | None:
     """The step's witness: the plan of ``spec`` with no-throw (18) for every object
     (:func:`~dualarm_mpc.model.spec.with_no_throw`, a restriction: quick where ``spec`` allows
     relays), at its own first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by
     the evaluator (:func:`~dualarm_mpc.search.subprograms.satisfies`); None where ``spec`` has
-    no-throw already, or the restriction has no plan or none in time."""
+    no-throw already, or the restriction has no plan or none in time. ``on_try`` hears of each
+    horizon of the restriction tried."""
     scenario, state, spec = problem.scenario, problem.state, problem.spec
     restricted = with_no_throw(spec)
     if restricted is None:
@@ -164,7 +176,8 @@ def witness(problem: StepProblem, options: SolveOptions | None) -> StepResult | 
     alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
                                                                      prover="none"))
     try:
-        res = first_plan(dataclasses.replace(problem, scenario=alone, spec=restricted), options)
+        res = first_plan(dataclasses.replace(problem, scenario=alone, spec=restricted), options,
+                         on_try)
     except PlanningError:
         return None
     if not satisfies(problem, model, res.trajectory):
@@ -479,7 +492,8 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
                       witness_cost=res.witness_cost, witness_horizon=res.witness_horizon,
                       horizons_proven_by_cpsat=list(res.proofs),
                       horizons_undecided=list(res.undecided),
-                      shorter_plan=None if res.passed_over is None else list(res.passed_over))
+                      shorter_plan=None if res.passed_over is None else list(res.passed_over),
+                      bound=float(min(res.bound, res.cost)), search_stats=res.search_stats)
         segments.append(seg)
         if progress:
             progress(seg)

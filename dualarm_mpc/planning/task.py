@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 
 from dualarm_mpc.milp.horizon import solve_options
@@ -15,7 +16,7 @@ from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import Report, check
 from dualarm_mpc.planning.sequential import HorizonTried, PlanningError, transport
 
-__all__ = ["ConflictError", "VerificationError", "plan"]
+__all__ = ["ConflictError", "VerificationError", "plan", "whole_task"]
 
 
 class ConflictError(PlanningError):
@@ -37,6 +38,19 @@ class VerificationError(PlanningError):
         self.problems = problems
 
 
+def whole_task(scenario: Scenario) -> Scenario:
+    """``scenario`` planned as one task (``plan --mo all``): m_o = n_o = its number of objects,
+    so φ_task (13) asks for every object and Algorithm 1's first step is one search over all of
+    them, exact as every step (minimal horizon, then minimal cost at it, eq. 17); its
+    certificate (``Segment.bound``, ``gap``, ``horizon_proven_minimal``) is then the whole
+    plan's. Under delivery ``reach`` an object may pass through its goal without resting
+    there, and a second step delivers it."""
+    n = scenario.n_objects
+    whole = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, m_o=n, n_o=n))
+    whole.validate()
+    return whole
+
+
 def plan(scenario: Scenario, *, check_first: bool = True,
          progress: Callable[[Segment], None] | None = None,
          on_try: Callable[[HorizonTried], None] | None = None,
@@ -51,8 +65,9 @@ def plan(scenario: Scenario, *, check_first: bool = True,
 
     Raises :class:`~dualarm_mpc.planning.sequential.PlanningError` when a step has no plan
     (``proven``: none exists up to the horizon cap), :class:`VerificationError` when the plan
-    fails verification. Returns the plan with ``verified`` true otherwise. ``scenario`` is
-    checked first as ``load_scenario`` checks it
+    fails verification. Returns the plan with ``verified`` true otherwise, and its
+    ``first_plan_s``: the wall seconds from the start of planning (after the check) until it
+    passed verification. ``scenario`` is checked first as ``load_scenario`` checks it
     (:meth:`~dualarm_mpc.model.scenario.Scenario.validate`)."""
     scenario.validate()
     if check_first:
@@ -62,11 +77,13 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     options = solve_options(scenario)
     if stop is not None:
         options = dataclasses.replace(options, interrupt=stop)
+    t0 = time.perf_counter()
     result = transport(scenario, options, progress, on_try)
     if result.partial or (stop is not None and stop.is_set()):
         return result
     verification = verify(scenario, result)
-    result = dataclasses.replace(result, verified=verification.ok)
+    result = dataclasses.replace(result, verified=verification.ok, first_plan_s=(
+        time.perf_counter() - t0 if verification.ok else None))
     if not verification.ok:
         raise VerificationError(result, verification.problems)
     return result

@@ -275,7 +275,9 @@ class FeasibilityPass:
             return Feasibility(Status.TIME_LIMIT)
         if not relaxed:
             self._ruled.add(node)
+            self.programs.stats.pruned.add(node)
             return Feasibility(Status.INFEASIBLE)
+        self.programs.stats.expanded.add(node)
         probe = None if node.free else compose(self.programs, self.store, node, exact=False,
                                                slice_s=slice_s)
         if probe is None:
@@ -289,12 +291,15 @@ class FeasibilityPass:
         wide = [n for n in self.skeleton.widest(relays, slice_s) if n not in self._ruled]
         relaxed = [self.relaxations_feasible(n, slice_s=slice_s) for n in wide]
         undecided = None in relaxed
-        self._ruled.update(n for n, r in zip(wide, relaxed, strict=True) if r is False)
+        ruled = [n for n, r in zip(wide, relaxed, strict=True) if r is False]
+        self._ruled.update(ruled)
+        self.programs.stats.pruned.update(ruled)
         wide = [n for n, r in zip(wide, relaxed, strict=True) if r]
         for at in range(0, len(wide), BATCH):
             if self.programs.stopped():
                 return Feasibility(Status.TIME_LIMIT, relays=relays)
             batch = wide[at:at + BATCH]
+            self.programs.stats.expanded.update(batch)
             probes = self.programs.map(lambda n: joint(
                 self.programs, self.store, n, exact=False, slice_s=slice_s), batch)
             for node, probe in zip(batch, probes, strict=True):
@@ -377,6 +382,7 @@ class BestFirst:
         best = min((p for p in (found.witness, incumbent) if p is not None),
                    key=lambda p: p.cost, default=None)
         undecided = np.inf  # the least bound of a node the solver could not close
+        stats = self.programs.stats
         while heap:
             node, key = heap.pop()
             lb = self.store.bound(node)
@@ -384,10 +390,13 @@ class BestFirst:
                 heap.push(node, lb)
                 continue
             if np.isinf(lb):
+                stats.pruned.add(node)
                 continue  # a relaxation is infeasible: so is the node
             limit = _cost(best)
             if lb >= limit * (1 - gap) - 1e-9 or self.programs.stopped():
                 heap.push(node, lb)
+                if lb >= limit * (1 - gap) - 1e-9:  # every open node is bounded above it
+                    stats.pruned.update(heap.in_order())
                 break
             need = self.store.missing(node)
             if need:
@@ -440,6 +449,7 @@ class BestFirst:
         from both hands' solutions when they fit together (directly or with their grasps
         kept), else the joint node program, solved against the better of the two (its order
         parts on every worker at once with ``spread``)."""
+        self.programs.stats.expanded.add(node)
         if node.handed_over or node.free:
             return joint(self.programs, self.store, node, cutoff=incumbent, spread=spread)
         lb = self.store.bound(node)
@@ -461,6 +471,7 @@ class BestFirst:
     def compose(self, node: Node) -> StepResult | None:
         """:func:`compose` from the hands' optimal relaxations, kept for the node."""
         if node not in self._composed:
+            self.programs.stats.expanded.add(node)
             self._composed[node] = compose(self.programs, self.store, node)
         return self._composed[node]
 
@@ -611,4 +622,5 @@ def search_step(problem: StepProblem, horizon: int, options: SolveOptions | None
     if below is not None:
         below.clear()
         below.update(search.store.with_plans())
-    return replace(res, solve_time_s=time.perf_counter() - t0)
+    return replace(res, solve_time_s=time.perf_counter() - t0,
+                   search_stats=search.programs.stats.record())

@@ -15,10 +15,11 @@ with the encoder).
 from __future__ import annotations
 
 import itertools
+import threading
 import time
 from collections.abc import Iterable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -65,6 +66,47 @@ class Node:
         return self.share(BOTH)
 
 
+@dataclass
+class SearchStats:
+    """What the search of one horizon did, so that its scaling can be read: the nodes
+    ``expanded`` (a plan of their own sought: the hands' plans put together, or the node's
+    program), those ``pruned`` by bounds alone (a relaxation without a plan, or a bound no
+    better than the incumbent), and the programs solved with their wall time summed over the
+    workers (the leaves of the search: relaxations and node programs)."""
+
+    expanded: set[Node] = field(default_factory=set)
+    pruned: set[Node] = field(default_factory=set)
+    programs: int = 0
+    program_time_s: float = 0.0
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def solved(self, wall_s: float) -> None:
+        with self._lock:
+            self.programs += 1
+            self.program_time_s += wall_s
+
+    def record(self) -> dict:
+        """The counts as the plan JSON's ``search_stats`` (docs/formats.md); a node pruned
+        and later expanded counts as expanded."""
+        return {"horizons": 1, "expansions": len(self.expanded),
+                "prunes": len(self.pruned - self.expanded), "programs": self.programs,
+                "leaf_time_s": round(self.program_time_s, 4)}
+
+    class Sum:
+        """The records of several searches (a step's horizons) added up."""
+
+        def __init__(self) -> None:
+            self.total: dict = {}
+
+        def add(self, record: dict | None) -> None:
+            for key, value in (record or {}).items():
+                self.total[key] = self.total.get(key, 0) + value
+
+        def record(self) -> dict | None:
+            """The sum, or None where no search ran (the monolithic MILP)."""
+            return {k: round(v, 4) for k, v in self.total.items()} or None
+
+
 class StepPrograms:
     """The programs of one horizon of one sequential step, narrowed as the search asks and
     solved by ``options.backend`` under the search's clock. ``pool``: the workers that solve
@@ -83,6 +125,7 @@ class StepPrograms:
         local_grasp = problem.state.grasp[:, list(spec.objects)]
         self.held = [j for n, j in enumerate(spec.objects) if local_grasp[:, n].any()]
         self.no_throw = frozenset(self.local[j] for j in spec.released_only_in_goal())
+        self.stats = SearchStats()
 
     @property
     def scenario(self) -> Scenario:
@@ -121,13 +164,15 @@ class StepPrograms:
         held still may move in the nodes it bounds (``HorizonProgram.standard_form``).
         ``apart``, and ``start``'s: pairs whose (C1)–(C2) rows it likely needs. It may take
         ``slice_s`` at most, and never past the horizon's deadline."""
-        remaining = max(min(self.deadline - time.perf_counter(), slice_s), 1e-3)
+        t0 = time.perf_counter()
+        remaining = max(min(self.deadline - t0, slice_s), 1e-3)
         options = replace(self.options, time_limit_s=remaining, small_trees=True, cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
         res = self.program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
                                  grasp=grasp, floor=floor, orders=orders, relaxed=relaxed,
                                  apart=apart if start is None else apart | start.apart)
+        self.stats.solved(time.perf_counter() - t0)
         if self.options.work is not None:
             self.options.work.spend()
         if res.status is Status.INFEASIBLE and np.isfinite(cutoff):
