@@ -3,6 +3,10 @@
 ``plan_step`` finds a step's shortest feasible horizon and its optimum there — by the skeleton
 search (``search.py``) or the monolithic MILP (``horizon.py``) — and ``plan`` repeats steps
 until every object rests in its goal.
+
+Why one module of this length: the horizon policies (exact, witness) and the loop of steps share
+one record of what each horizon tried and proved, from which every step's certificate (its bound,
+whether its horizon is minimal) is read; apart, the certificate would be rebuilt from outside.
 """
 
 from __future__ import annotations
