@@ -485,7 +485,7 @@ def _add_controller(builder: DiagramBuilder, station: Station
                           name))
         outputs.append(names)
     controller = builder.AddNamedSystem("controller", DifferentialIkController(
-        [arm.control for arm in arms], outputs, station.time_step))
+        [arm.control for arm in arms], outputs))
     for k, instance in enumerate(station.robots):
         builder.Connect(controller.GetOutputPort(f"desired_state_{k}"),
                         plant.get_desired_state_input_port(instance))

@@ -2,8 +2,8 @@
 
 The SCARA has a closed form (:mod:`dualarm_mpc.systems.controller`); any other arm goes through
 Drake's differential inverse kinematics (``DoDifferentialInverseKinematics``, a small QP per arm
-and step). Every ``time_step`` each arm's commanded posture q_c moves by h·q̇, q̇ the QP's answer
-to the hand's desired spatial velocity
+and update). Every ``IK_PERIOD`` (100 Hz, a robot controller's rate) each arm's commanded posture
+q_c moves by h·q̇, q̇ the QP's answer to the hand's desired spatial velocity
 
     v = v_ref + K_P·(p_ref − p(q_c)),      ω = K_R·log(R_n·R(q_c)ᵀ),
 
@@ -14,8 +14,11 @@ limits, and its null-space term pulls toward the nominal posture, so that a redu
 not drift. Joints outside an arm's chain (fingers, a torso both arms share) are held at the
 nominal posture, their velocity bound zero.
 
-The output is the plant's desired state [q_c; q̇] per robot model instance, which its PD
-controllers track (gains and gravity compensation: :mod:`dualarm_mpc.sim.robot`).
+The output is the plant's desired state [q_c + (t − t_k)·q̇; q̇] per robot model instance, q_c
+as of the last update t_k, so that the desired posture moves on between updates at the plant's
+2 ms steps; its PD controllers track it (gains and gravity compensation:
+:mod:`dualarm_mpc.sim.robot`). At every plant step instead, the QPs cost half the physics of a
+Panda pair again (measured).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 K_P = 20.0  # 1/s: the hand's position error closes with a 50 ms time constant
 K_R = 20.0  # 1/s: the tool axis's
 CENTERING = 1.0  # 1/s: the null-space pull toward the nominal posture
+IK_PERIOD = 0.01  # s
 
 
 @dataclass(frozen=True)
@@ -66,12 +70,12 @@ class DifferentialIkController(LeafSystem):
     """
 
     def __init__(self, arms: Sequence[ArmModel], outputs: Sequence[Sequence[tuple[int, str]]],
-                 time_step: float):
+                 period: float = IK_PERIOD):
         super().__init__()
         if len(arms) != 2:
             raise ValueError(f"arms: expected 2 (right, left), got {len(arms)}")
         self._arms = tuple(arms)
-        self._h = time_step
+        self._h = period
         self._contexts = [arm.plant.CreateDefaultContext() for arm in arms]
         self._params = [self._parameters(arm) for arm in arms]
         self._orientations = []  # R_n per arm
@@ -84,17 +88,18 @@ class DifferentialIkController(LeafSystem):
         self._slots = [slice(start[i], start[i + 1]) for i in range(2)]
         n = int(start[-1])
         self._n = n
+        # [q_c (n); q̇ (n); t_k]: the posture and its rate as of the last update t_k
         initial = np.concatenate([*(arm.nominal[[j.position_start() for j in arm.joints]]
-                                    for arm in arms), np.zeros(n)])
+                                    for arm in arms), np.zeros(n + 1)])
         self._state = self.DeclareDiscreteState(initial)
-        self.DeclarePeriodicDiscreteUpdateEvent(time_step, 0.0, self._update)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, 0.0, self._update)
         self._hand_reference = self.DeclareVectorInputPort("hand_reference", 12)
         self._outputs = [self._layout(names) for names in outputs]
         for k, layout in enumerate(self._outputs):
             self.DeclareVectorOutputPort(
                 f"desired_state_{k}", 2 * len(layout),
                 lambda context, output, layout=layout: self._desired(context, output, layout),
-                {self.xd_ticket()})
+                {self.xd_ticket(), self.time_ticket()})
 
     def get_hand_reference_input_port(self):
         return self._hand_reference
@@ -131,8 +136,11 @@ class DifferentialIkController(LeafSystem):
     def _update(self, context, discrete_state) -> None:
         x = discrete_state.get_mutable_vector(self._state).get_mutable_value()
         ref = self._hand_reference.Eval(context)
+        n, t = self._n, context.get_time()
+        x[:n] += (t - x[2 * n]) * x[n:2 * n]  # where the last update's rate has taken q_c
+        x[2 * n] = t
         for i, arm in enumerate(self._arms):
-            q_chain = x[self._slots[i]]
+            q_chain = x[self._slots[i]].copy()
             plant, ctx = arm.plant, self._contexts[i]
             q = arm.nominal.copy()
             q[[j.position_start() for j in arm.joints]] = q_chain
@@ -148,11 +156,11 @@ class DifferentialIkController(LeafSystem):
             if result.status == DifferentialInverseKinematicsStatus.kSolutionFound:
                 speed = result.joint_velocities.ravel()[[j.velocity_start()
                                                          for j in arm.joints]]
-            x[self._slots[i]] = q_chain + self._h * speed
-            x[self._n + self._slots[i].start: self._n + self._slots[i].stop] = speed
+            x[n + self._slots[i].start: n + self._slots[i].stop] = speed
 
     def _desired(self, context, output: BasicVector, layout) -> None:
         x = context.get_discrete_state(self._state).value()
+        elapsed = context.get_time() - x[2 * self._n]
         q, v = [], []
         for arm_index, slot, held in layout:
             if slot is None:
@@ -160,6 +168,6 @@ class DifferentialIkController(LeafSystem):
                 v.append(0.0)
             else:
                 k = self._slots[arm_index].start + slot
-                q.append(x[k])
+                q.append(x[k] + elapsed * x[self._n + k])
                 v.append(x[self._n + k])
         output.SetFromVector(np.array(q + v))
