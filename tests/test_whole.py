@@ -16,7 +16,8 @@ from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.spec import StepProblem, rule_formulas, specification
 
 OBJECTS = 3
-# The monolithic MILP proves these steps in 10-180 s each: one seed by default, the rest slow.
+# The monolithic MILP proves these steps in 10 s to over 5 min each: one seed by default, the
+# rest slow.
 SLOW_SEEDS = [pytest.param(seed, marks=pytest.mark.slow) for seed in (0, *range(2, 10))]
 
 
