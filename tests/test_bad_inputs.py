@@ -91,7 +91,7 @@ CASES = [
     (["plan", "long_rule_syntax_error.yaml"], "rules[0]: column 1800: expected a formula"),
     # flags
     (["plan", "base.yaml", "--out", "no/such/dir/plan.json"], "argument --out: directory"),
-    (["plan", "base.yaml", "--out", "."], "argument --out: . is a directory"),
+    (["plan", "base.yaml", "--out", "."], "argument --out: . names a directory"),
     (["plan", "base.yaml", "--plot", "plan.xyz"], "argument --plot: unknown plot format 'xyz'"),
     (["simulate", "base.yaml", "--html", "no/such/dir/r.html"], "argument --html: directory"),
     (["simulate", "base.yaml", "--summary", "/proc/s.json"], "argument --summary: cannot write"),

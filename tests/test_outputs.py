@@ -132,7 +132,7 @@ COLLISIONS = [
     (["plan", "{s}", "--out", "{fifo}"], "argument --out: fifo.json is a FIFO, not a regular"),
     (["plan", "{s}", "--out", "/dev/full"], "argument --out: /dev/full is a character device"),
     (["plan", "{s}", "--out", "{loop}"], "argument --out: a.json: Too many levels of symbolic"),
-    (["plan", "{s}", "--out", "."], "argument --out: . is a directory"),
+    (["plan", "{s}", "--out", "."], "argument --out: . names a directory"),
     (["plan", "{s}", "--out", "new/"], "argument --out: new/ names a directory"),
     (["plan", "{s}", "--out", ""], "argument --out: an empty path"),
     (["plan", "{s}", "--export", "scenario.yaml"], "argument --export: scenario.yaml is not a"),
@@ -381,7 +381,7 @@ EXIT_CODES = [
     (["check", "{s}", *JOINT_CONFLICT], 3, "no plan delivers them together"),
     (["plan", "{s}", *JOINT_CONFLICT], 3, "conflict with the task"),
     (["check", "{s}", *NO_TIME], 4, "undecided within the time limit"),
-    (["plan", "{s}", *NO_TIME], 4, "could not decide"),  # 3 before: a conflict without proof
+    (["plan", "{s}", *NO_TIME], 4, "not decided within the time limit"),  # 3 before: a conflict without proof
     (["simulate", "{r}", "--duration", "1"], 4, "not every object ends at rest"),
 ]
 
