@@ -381,7 +381,7 @@ EXIT_CODES = [
     (["check", "{s}", *JOINT_CONFLICT], 3, "no plan delivers them together"),
     (["plan", "{s}", *JOINT_CONFLICT], 3, "conflict with the task"),
     (["check", "{s}", *NO_TIME], 4, "undecided within the time limit"),
-    (["plan", "{s}", *NO_TIME], 4, "not decided within the time limit"),  # 3 before: a conflict without proof
+    (["plan", "{s}", *NO_TIME], 4, "not decided within the time limit"),  # 3 before: no proof
     (["simulate", "{r}", "--duration", "1"], 4, "not every object ends at rest"),
 ]
 
