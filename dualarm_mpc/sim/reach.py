@@ -20,7 +20,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
 
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.sim.robot import AddArms, Arm, solve_hand_ik
+from dualarm_mpc.sim.robot import AddArms, Arm, place_arms, solve_hand_ik
 from dualarm_mpc.sim.robot_files import RobotError
 from dualarm_mpc.systems.interpolator import TRAVEL_HEIGHT
 
@@ -50,13 +50,12 @@ def _check(scenario: Scenario) -> None:
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
     arms = AddArms(plant, scenario)
     plant.Finalize()
+    place_arms(plant, arms)
     pairs = _arm_pairs(plant, scene_graph, arms)
     diagram = builder.Build()
     context = diagram.CreateDefaultContext()
-    plant_context = plant.GetMyMutableContextFromRoot(context)
-    q = plant.GetPositions(plant_context)
-    for arm in arms:
-        q = _set_nominal(plant, arm, q)
+    q = plant.GetPositions(plant.GetMyContextFromRoot(context))
+    facings = [_orientation(arm) for arm in arms]
     robot = scenario.robot
     x0, x1, y0, y1 = robot.workspace
     heights = (scenario.table.object_size, TRAVEL_HEIGHT)
@@ -67,14 +66,14 @@ def _check(scenario: Scenario) -> None:
         for z in heights:
             for y in ys:
                 for x in np.linspace(lo, hi, GRID):
-                    found = _posture(plant, arm, [x, y, z], guess)
+                    found = _posture(plant, arm, [x, y, z], guess, facings[i])
                     if found is None:
                         raise RobotError(
                             f"robot_model: arm {i + 1} cannot reach {_point([x, y, z])} with its "
                             f"tool down (workspace {robot.workspace}, hand_gap {robot.hand_gap} "
                             f"by eq. (16)): move arm_bases or shrink the workspace")
                     guess = found
-    least = _least_gap(plant, scene_graph, context, arms, pairs, q, scenario)
+    least = _least_gap(plant, scene_graph, context, arms, facings, pairs, q, scenario)
     if least > robot.hand_gap + 1e-9:
         raise RobotError(
             f"hand_gap: the arms come within {ARM_CLEARANCE} m of each other with the hands "
@@ -86,26 +85,16 @@ def _point(p) -> str:
     return "[" + ", ".join(f"{v:.3g}" for v in p) + "]"
 
 
-def _set_nominal(plant: MultibodyPlant, arm: Arm, q: np.ndarray) -> np.ndarray:
-    """``q`` with ``arm``'s joints at its nominal posture."""
-    q = q.copy()
-    for j in plant.GetJointIndices(arm.instance):
-        joint = plant.get_joint(j)
-        if joint.num_positions() == 1 and arm.control.plant.HasJointNamed(joint.name()):
-            k = arm.control.plant.GetJointByName(joint.name()).position_start()
-            q[joint.position_start()] = arm.control.nominal[k]
-    return q
-
-
 def _orientation(arm: Arm):
+    """The hand's orientation in the nominal posture, which the controller keeps."""
     context = arm.control.plant.CreateDefaultContext()
     arm.control.plant.SetPositions(context, arm.control.nominal)
     return arm.control.hand.CalcPoseInWorld(context).rotation()
 
 
-def _posture(plant: MultibodyPlant, arm: Arm, point, guess: np.ndarray) -> np.ndarray | None:
-    return solve_hand_ik(plant, arm.hand.body_frame(), arm.joints, point, guess,
-                         _orientation(arm))
+def _posture(plant: MultibodyPlant, arm: Arm, point, guess: np.ndarray,
+             facing) -> np.ndarray | None:
+    return solve_hand_ik(plant, arm.hand.body_frame(), arm.joints, point, guess, facing)
 
 
 def _arm_pairs(plant: MultibodyPlant, scene_graph: SceneGraph, arms):
@@ -114,20 +103,21 @@ def _arm_pairs(plant: MultibodyPlant, scene_graph: SceneGraph, arms):
     return [(a, b) for a in geometries[0] for b in geometries[1]]
 
 
-def _least_gap(plant, scene_graph, context, arms, pairs, q, scenario: Scenario) -> float:
+def _least_gap(plant, scene_graph, context, arms, facings, pairs, q,
+               scenario: Scenario) -> float:
     """The least hand_gap, from eq. (16)'s own up in ``GAP_STEP``, at which both hands at the
     same y, that far apart along x, leave ``ARM_CLEARANCE`` between the arms everywhere."""
     robot = scenario.robot
     x0, x1, y0, y1 = robot.workspace
     gap = robot.hand_gap
     while gap <= x1 - x0:
-        if _clear_at(plant, scene_graph, context, arms, pairs, q, gap, scenario):
+        if _clear_at(plant, scene_graph, context, arms, facings, pairs, q, gap, scenario):
             return gap
         gap += GAP_STEP
     return gap
 
 
-def _clear_at(plant, scene_graph, context, arms, pairs, q, gap: float,
+def _clear_at(plant, scene_graph, context, arms, facings, pairs, q, gap: float,
               scenario: Scenario) -> bool:
     x0, x1, y0, y1 = scenario.robot.workspace
     z = TRAVEL_HEIGHT
@@ -137,7 +127,7 @@ def _clear_at(plant, scene_graph, context, arms, pairs, q, gap: float,
             points = ([x_left + gap, y, z], [x_left, y, z])
             posture = q.copy()
             for i, arm in enumerate(arms):
-                found = _posture(plant, arm, points[i], guesses[i])
+                found = _posture(plant, arm, points[i], guesses[i], facings[i])
                 if found is None:
                     return False
                 guesses[i] = found

@@ -264,6 +264,18 @@ def AddArms(plant: MultibodyPlant, scenario: Scenario) -> tuple[Arm, Arm]:
     return tuple(_arm(plant, *arm) for arm in arms)
 
 
+def place_arms(plant: MultibodyPlant, arms: tuple[Arm, Arm]) -> None:
+    """A robot model's default posture: each joint at its arm's nominal posture (the hands
+    above ``hand_start`` at the travel height, tools down)."""
+    for arm in arms:
+        nominal, control = arm.control.nominal, arm.control.plant
+        for j in plant.GetJointIndices(arm.instance):
+            joint = plant.get_joint(j)
+            if joint.num_positions() == 1 and control.HasJointNamed(joint.name()):
+                k = control.GetJointByName(joint.name()).position_start()
+                joint.set_default_positions(nominal[k:k + 1])
+
+
 def _actuate(plant: MultibodyPlant, instances, controls: list[ArmModel]) -> None:
     """An actuator with PD gains on every moving joint of the robot: kp = m ω², kd = 2 m ω,
     m the joint's diagonal entry of the mass matrix at the nominal posture (its control plant's)."""

@@ -53,7 +53,7 @@ from dualarm_mpc.base.palette import TABLE_COLOUR, goal_colour
 from dualarm_mpc.model.scenario import ROBOT_ARM_BASES, ROBOT_LINKS, Scenario
 from dualarm_mpc.sim.reach import check_robot
 from dualarm_mpc.sim.resources import ROBOT_URL, package_map
-from dualarm_mpc.sim.robot import ARM_SIDES, AddArms, Arm, tool_depth
+from dualarm_mpc.sim.robot import ARM_SIDES, AddArms, Arm, place_arms, tool_depth
 from dualarm_mpc.systems.controller import ELBOW_SIGNS, Controller, scara_ik
 from dualarm_mpc.systems.differential_ik import DifferentialIkController
 from dualarm_mpc.systems.gripper import Gripper
@@ -311,7 +311,7 @@ def AddStation(builder: DiagramBuilder, scenario: Scenario, time_step: float = 2
         scara, bases = _place_scara(plant, scara, scenario)
         grasp_height = scenario.table.object_size + _tip_radius(plant, hands[0], scene_graph)
     else:
-        _place_arms(plant, arms)
+        place_arms(plant, arms)
         bases = np.array([arm.base[:2] for arm in arms])
         # the tool on the box's top face, 1 mm above it
         grasp_height = scenario.table.object_size + 1e-3 + max(
@@ -382,18 +382,6 @@ def _place_scara(plant: MultibodyPlant, joints, scenario: Scenario) -> tuple[Sca
         raise ValueError(f"model: expected the 6 arm joints to be actuated, got {actuated}")
     return Scara(joints, lengths, ELBOW_SIGNS, tuple(j.position_start() for j in canonical),
                  actuator_order), bases
-
-
-def _place_arms(plant: MultibodyPlant, arms: tuple[Arm, Arm]) -> None:
-    """A robot model's default posture: each joint at its arm's nominal posture (the hands
-    above ``hand_start`` at the travel height, tools down)."""
-    for arm in arms:
-        nominal, control = arm.control.nominal, arm.control.plant
-        for j in plant.GetJointIndices(arm.instance):
-            joint = plant.get_joint(j)
-            if joint.num_positions() == 1 and control.HasJointNamed(joint.name()):
-                k = control.GetJointByName(joint.name()).position_start()
-                joint.set_default_positions(nominal[k:k + 1])
 
 
 @dataclass(frozen=True)
