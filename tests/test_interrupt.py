@@ -42,8 +42,9 @@ def test_a_search_without_news_says_it_is_still_searching(tmp_path, capsys, monk
     monkeypatch.setattr(process, "HEARTBEAT_S", 0.0)  # every tick: the line a long search prints
     from dualarm_mpc.planning import task
 
-    def slow_first_step(scenario, options, progress, tried):  # a step longer than a 0.1 s tick
-        return transport(scenario, options, lambda seg: (time.sleep(0.5), progress(seg)), tried)
+    def slow_first_step(scenario, options, progress, tried, *args, **kwargs):  # a step longer
+        return transport(scenario, options,  # than a 0.1 s tick
+                         lambda seg: (time.sleep(0.5), progress(seg)), tried, *args, **kwargs)
 
     monkeypatch.setattr(task, "transport", slow_first_step)
     assert cli.main(["plan", "table1_vd", "--seed", "1", "--set", "random_objects.count: 4"]) == 0

@@ -188,11 +188,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
             print(f"{'':>4}{res.horizon:>3} {res.binaries:>8}  {res.status.value:<10} "
                   f"{res.solve_time_s:>9.2f}{by}", flush=True)
 
+    def first_plan(first) -> None:  # the anytime plan's first pass: its steps again, searched
+        print(f"first verified plan: cost {first.total_cost:.3f} after {first.first_plan_s:.2f} s"
+              " (each step's no-throw witness); Algorithm 1 on each step now", flush=True)
+        count[0] = headed[0] = 0
+
     stop = Interrupt()
     problems: list[str] = []
     try:
         result = interruptible(lambda: plan(scenario, check_first=False, progress=progress,
-                                            on_try=tried, stop=stop), stop, heartbeat)
+                                            on_try=tried, stop=stop, on_first_plan=first_plan),
+                               stop, heartbeat)
     except VerificationError as err:
         result, problems = err.plan, err.problems
     except PlanningError as err:

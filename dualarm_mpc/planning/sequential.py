@@ -125,8 +125,34 @@ def select_objects(scenario: Scenario, state: State, remaining: list[int]) -> li
     return sorted(sorted(remaining, key=lambda j: (estimate(j), j))[: scenario.task.n_o])
 
 
+class KeptSteps:
+    """What ``task.plan``'s first pass (the anytime plan) searched, by step problem, for its
+    second: each step's no-throw witness and each step planned in full, with the wall seconds
+    it took. Where the second pass meets a step problem of the first (the same objects from the
+    same state: its first step, and every step after one whose plan was its witness) it takes
+    them instead of searching again."""
+
+    def __init__(self) -> None:
+        self.witnesses: dict[tuple, tuple[StepResult | None, float, dict | None]] = {}
+        self.steps: dict[tuple, tuple[StepResult, float]] = {}
+        self.reused_s = 0.0  # seconds of the first pass's searches the second took
+
+    @staticmethod
+    def key(problem: StepProblem) -> tuple:
+        s = problem.state
+        return (tuple(problem.spec.objects), problem.spec.m_o,
+                *(np.asarray(a).tobytes() for a in (s.hand_pos, s.hand_vel, s.object_pos,
+                                                     s.object_vel, s.grasp)))
+
+    @property
+    def any_witness(self) -> bool:
+        """Some step of the first pass was its witness: the second pass has work to do."""
+        return any(found is not None for found, _, _ in self.witnesses.values())
+
+
 def plan_step(problem: StepProblem, options: SolveOptions | None = None,
-              on_try: Callable[[StepResult], None] | None = None) -> tuple[StepResult, float]:
+              on_try: Callable[[StepResult], None] | None = None,
+              kept: KeptSteps | None = None, quick: bool = False) -> tuple[StepResult, float]:
     """Lines 4–6 of Algorithm 1 by the scenario's ``solver.horizons`` policy. Returns the
     result (with :attr:`~dualarm_mpc.milp.horizon.StepResult.minimal` and the witness's cost and
     horizon) and the step's total solve time (wall time, everything included).
@@ -135,11 +161,18 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
     (the skeleton search's default): first the no-throw witness (:func:`witness`), then
     Algorithm 1 on the horizons below its T₁ within one budget for the step, its plan taken
     where it is cheaper than the witness (:func:`below_witness`); the step's plan is never
-    worse than its witness.
+    worse than its witness. ``quick``: the witness itself, where there is one (the anytime
+    plan's first pass), with no claim beyond its own (:func:`as_step`). ``kept``: what a first
+    pass searched, taken where this is one of its step problems, and added to where ``quick``.
 
     The result's ``search_stats`` add up the skeleton search's work over every horizon the
     step searched, the witness's included (None under the monolithic MILP)."""
     t0 = time.perf_counter()
+    key = None if kept is None else kept.key(problem)
+    if kept is not None and key in kept.steps and not quick:
+        res, seconds = kept.steps[key]
+        kept.reused_s += seconds
+        return res, seconds
     found = None
     solver = problem.scenario.solver
     stats = SearchStats.Sum()
@@ -150,12 +183,41 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
             on_try(res)
 
     if solver.horizons == "witness" and solver.search == "skeleton":
-        found = witness(problem, options, lambda res: stats.add(res.search_stats))
+        if kept is not None and key in kept.witnesses:
+            found, seconds, record = kept.witnesses[key]
+            kept.reused_s += seconds
+            t0 -= seconds  # the step's time is its witness's and what follows
+            stats.add(record)
+        else:
+            witness_stats = SearchStats.Sum()
+            found = witness(problem, options, lambda res: witness_stats.add(res.search_stats))
+            stats.add(witness_stats.record())
+            if kept is not None:
+                kept.witnesses[key] = (found, time.perf_counter() - t0, witness_stats.record())
+        if quick and found is not None:
+            return (dataclasses.replace(as_step(problem, found, options),
+                                        search_stats=stats.record()),
+                    time.perf_counter() - t0)
     if found is None:
         res = first_plan(problem, options, tried)
     else:
         res = below_witness(problem, found, options, tried)
-    return dataclasses.replace(res, search_stats=stats.record()), time.perf_counter() - t0
+    res = dataclasses.replace(res, search_stats=stats.record())
+    total = time.perf_counter() - t0
+    if kept is not None and quick:
+        kept.steps[key] = (res, total)
+    return res, total
+
+
+def as_step(problem: StepProblem, found: StepResult, options: SolveOptions | None) -> StepResult:
+    """The witness ``found`` as the step's plan: a plan of the step, whose own bound and
+    horizon proofs hold for the restriction only; so its bound is 0 and the horizons from
+    predictT below its own are undecided."""
+    below = tuple(range(predict_horizon(problem, options), found.horizon))
+    return dataclasses.replace(found, bound=0.0, gap=1.0 if found.cost > 0 else 0.0,
+                               status=Status.FEASIBLE if found.cost > 0 else Status.OPTIMAL,
+                               witness_cost=found.cost, witness_horizon=found.horizon,
+                               proofs=(), undecided=below, passed_over=None)
 
 
 def witness(problem: StepProblem, options: SolveOptions | None,
@@ -436,9 +498,11 @@ def embed_step(scenario: Scenario, state: State, objects: list[int],
 
 def transport(scenario: Scenario, options: SolveOptions | None = None,
               progress: Callable[[Segment], None] | None = None,
-              on_try: Callable[[HorizonTried], None] | None = None) -> Plan:
+              on_try: Callable[[HorizonTried], None] | None = None,
+              kept: KeptSteps | None = None, quick: bool = False) -> Plan:
     """Algorithm 1 (sequential transportation): plan m_o objects at a time until every object
-    rests in its goal. ``progress`` hears of each step, ``on_try`` of each horizon tried.
+    rests in its goal. ``progress`` hears of each step, ``on_try`` of each horizon tried;
+    ``kept`` and ``quick`` go to each step (:func:`plan_step`).
     Raises :class:`PlanningError` with the reason when a step has no plan; when
     ``options.interrupt`` is set, returns the steps completed so far (``partial``)."""
     state = State.initial(scenario)
@@ -472,7 +536,7 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
         problem = StepProblem(scenario, state, specification(scenario, objects, rules=rules))
         cpu0 = time.process_time()
         try:
-            res, total = plan_step(problem, options, on_try and tried)
+            res, total = plan_step(problem, options, on_try and tried, kept, quick)
         except Interrupted:
             return finish(partial=True)
         except PlanningError as err:

@@ -1,0 +1,73 @@
+"""The anytime plan (``dm.plan``'s two passes, docs/search.md): under a rule that allows throws,
+each step's no-throw witness gives a complete plan first, verified against the scenario's own
+rules and carrying no claim beyond its own; Algorithm 1 then refines it, and a stop between the
+passes returns the first plan whole."""
+
+from __future__ import annotations
+
+import pytest
+
+import dualarm_mpc as dm
+from dualarm_mpc.model.verify import verify
+
+
+def four_objects(rule: int) -> dm.Scenario:
+    return dm.load_scenario("table1_vd", {"seed": 1, "random_objects": {"count": 4},
+                                          "rule": rule, "m_o": 2, "n_o": 4})
+
+
+@pytest.fixture(scope="module")
+def refined():
+    """Rule 2: the plan, and the first pass's plan as ``on_first_plan`` heard of it."""
+    firsts: list[dm.Plan] = []
+    return dm.plan(four_objects(2), on_first_plan=firsts.append), firsts
+
+
+def test_the_first_plan_is_complete_verified_and_claims_no_more_than_it_has(refined) -> None:
+    plan, firsts = refined
+    assert len(firsts) == 1
+    first = firsts[0]
+    assert first.verified and not first.partial
+    assert all(d is not None for d in first.delivered_step)
+    assert verify(four_objects(2), first).ok  # the no-throw witnesses obey rule 2 too
+    for step in first.segments:  # a witness's bound and horizons are its restriction's
+        assert step.witness_cost == pytest.approx(step.cost)
+        assert step.bound == 0.0 and step.status == "feasible"
+    assert first.gap == 1.0
+
+
+def test_the_refined_plan_is_no_worse_and_counts_every_search(refined) -> None:
+    plan, (first,) = refined
+    assert plan.verified and not plan.partial
+    assert plan.total_cost <= first.total_cost + 1e-9
+    assert plan.first_plan_s == first.first_plan_s
+    # the second pass took the first step's witness; the first pass's other steps were its own
+    assert plan.unused_solve_time_s > 0
+    assert plan.total_solve_time_s == pytest.approx(
+        sum(s.solve_time_s for s in plan.segments) + plan.unused_solve_time_s)
+    assert plan.first_plan_s < plan.total_solve_time_s
+    assert dm.Plan.from_json(plan.to_json()).unused_solve_time_s == pytest.approx(
+        plan.unused_solve_time_s, abs=1e-4)
+
+
+def test_a_stop_after_the_first_plan_returns_it_whole() -> None:
+    stop = dm.Interrupt()
+    firsts: list[dm.Plan] = []
+
+    def heard(first: dm.Plan) -> None:
+        firsts.append(first)
+        stop.set()
+
+    plan = dm.plan(four_objects(2), stop=stop, on_first_plan=heard)
+    assert plan.verified and not plan.partial
+    assert plan.total_cost == firsts[0].total_cost
+    assert [s.cost for s in plan.segments] == [s.cost for s in firsts[0].segments]
+
+
+def test_without_a_witness_one_pass_is_the_plan() -> None:
+    """Rule 1 has no-throw already: no witness, so one pass, which is Algorithm 1."""
+    firsts: list[dm.Plan] = []
+    plan = dm.plan(four_objects(1), on_first_plan=firsts.append)
+    assert firsts == [] and plan.verified
+    assert plan.unused_solve_time_s == 0.0
+    assert plan.first_plan_s >= plan.total_solve_time_s - 1e-3
