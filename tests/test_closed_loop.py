@@ -13,7 +13,8 @@ so the whole file runs in about two minutes:
 * a throw (rule 2, §V-C-like bounds, goal beyond the hands' reach): the object rests in its goal
   while the hands never left their range, traced every simulation step;
 * environment events: an object knocked while waiting its turn, one knocked out of its goal just
-  after delivery, a goal moved before its object is delivered;
+  after delivery, a goal moved before its object is delivered; the whole task in one plan
+  (``--mo all``) kept while followed and replanned whole after a knock;
 * the Meshcat replay HTML is written and self-contained;
 * robustness: solver time-outs and failures (real ones in real time, with a 1 ms time limit, and
   injected exceptions) are recorded and never stop the simulation;
@@ -52,6 +53,7 @@ from dualarm_mpc.model.scenario import (
     on_robot_overrides,
 )
 from dualarm_mpc.planning.sequential import solve_horizon
+from dualarm_mpc.planning.task import whole_task
 from dualarm_mpc.sim.closed_loop import Summary, simulate
 from dualarm_mpc.sim.recording import is_self_contained
 
@@ -355,6 +357,29 @@ def test_object_knocked_out_of_the_hand_mid_carry_is_fetched_again() -> None:
     summary = simulate(scenario, duration=25.0)  # fetched again and delivered by t ~ 15 s
     assert_all_at_rest_in_goals(summary, goals=VD["goals"])
     assert summary.delivered_time_s[0] > knock.time
+
+
+def test_the_whole_task_in_one_plan_replans_the_whole_rest_after_a_knock() -> None:
+    """``simulate --mo all``: every replan is one search over every object not yet resting in
+    its goal; the plan in force is kept while the robot follows it, and a knock replans the whole
+    rest, which is still delivered."""
+    objects = [ObjectSpec("a", [0.1, 0.1], "red"), ObjectSpec("b", [-0.1, 0.1], "green"),
+               ObjectSpec("c", [0.0, -0.1], "red")]
+    knock = Event(time=3.0, kind="move_object", target="c", position=[-0.2, -0.2])
+    scenario = whole_task(scene("whole_knock", objects, events=[knock]))
+    summary, _ = run(scenario)
+    assert_all_at_rest_in_goals(summary, goals=VD["goals"])
+    assert_replans_recorded(summary, scenario)
+    first = summary.replans[0]
+    assert sorted(first["objects"]) == ["a", "b", "c"] and first["status"] == "optimal"
+    before = [r for r in summary.replans if 0 < r["t"] < knock.time]
+    assert before and all(r["status"] == "kept" for r in before)
+    after = next(r for r in summary.replans if r["t"] >= knock.time)  # the knock, then it
+    assert after["status"] in SOLUTION_STATUSES - {"kept"}, after
+    assert "c" in after["objects"]
+    resting = {summary.objects[j]["name"] for j, t in enumerate(summary.delivered_time_s)
+               if t is not None and t <= after["t"]}
+    assert sorted(after["objects"]) == sorted({"a", "b", "c"} - resting)
 
 
 def test_goal_moved_before_delivery_object_ends_in_the_new_goal() -> None:
