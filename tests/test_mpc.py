@@ -27,9 +27,9 @@ from dualarm_mpc.planning.mpc import (
     ONE_FIRST,
     PLANNED_AHEAD,
     SEARCHING,
-    STILL_SPEED,
     MpcState,
     Replanner,
+    Tolerances,
 )
 from dualarm_mpc.planning.sequential import solve_horizon
 
@@ -94,14 +94,41 @@ def test_an_object_creeping_across_its_goals_edge_is_not_delivered() -> None:
     assert s.delivered_time == (None,) and s.step_objects == (0,)
 
 
+def test_a_box_shoved_out_of_a_small_scenes_goal_is_not_snapped_back_into_it() -> None:
+    """The snap to the plan's own state is in boxes (``Tolerances``): in ``panda_vd`` (a quarter
+    of §V-D) a box shoved 6 mm past its goal's edge, 13-16 mm from where its plan left it,
+    is taken as measured and fetched again; a fixed 2 cm had snapped it back into its goal."""
+    red = [0.09, 0.11, 0.19, 0.21]  # 2 cm: the plan leaves the box within 1 cm of an edge
+    sc = load_scenario("panda_vd", {"random_objects": {"count": 1}, "goals": {"red": red},
+                                    "delivery": "rest", "goal_margin": 0.0075})
+    assert Tolerances.of(sc).snap_position == pytest.approx(0.005)
+    core = Replanner(sc)
+    s1, r = core.step(0.0, core.initial_state(), at_rest(sc), sc.task.goals)
+    assert r.objects == (0,) and r.horizon is not None
+    end = State.at(s1.plan.trajectory, s1.plan.trajectory.steps)
+    assert in_goal(end.object_pos[0], red)
+    x, y = end.object_pos[0]
+    edges = {(0, red[0] - 0.006): x - red[0], (0, red[1] + 0.006): red[1] - x,
+             (1, red[2] - 0.006): y - red[2], (1, red[3] + 0.006): red[3] - y}
+    (axis, past), _ = min(edges.items(), key=lambda e: e[1])
+    shoved = end.object_pos.copy()
+    shoved[0, axis] = past
+    assert 0.005 < np.abs(shoved - end.object_pos).max() < 0.02
+    released = dataclasses.replace(end, object_pos=shoved, grasp=np.zeros_like(end.grasp))
+    s2, r2 = core.step(s1.horizon_end, s1, released, sc.task.goals)
+    core.close()
+    assert r2.status in ("optimal", "feasible") and r2.n_delivered == 0, r2
+    assert s2.delivered_time == (None,) and r2.objects == (0,)
+
+
 def test_an_object_sliding_slowly_into_a_goal_out_of_reach_is_arriving_not_lost() -> None:
-    """Knocked beyond the hands' reach, just outside its goal and slower than ``STILL_SPEED``
+    """Knocked beyond the hands' reach, just outside its goal and slower than ``still_speed``
     (which the committed state takes as rest), it slides into the goal: the replan says done,
     not stuck."""
     far = [1.2, 1.5, 0.65, 0.95]
     sc = scenario(goals={**GOALS, "red": far})
     core = Replanner(sc)
-    speed = 0.5 * STILL_SPEED
+    speed = 0.5 * Tolerances.of(sc).still_speed
     sliding = at_rest(sc, [[far[0] - 0.5 * sc.robot.dt * speed, 0.8]])
     sliding = dataclasses.replace(sliding, object_vel=np.array([[speed, 0.0]]))
     s, r = core.step(3.0, core.initial_state(), sliding, sc.task.goals)

@@ -37,9 +37,9 @@ def stops_in_goal(sc: Scenario, pos: np.ndarray, vel: np.ndarray | float) -> np.
 
 def arriving(sc: Scenario, state: State, measured: State) -> np.ndarray:
     """Unheld moving objects whose one-step slide ends in their goals, in the committed state
-    or in the measured one: slower than ``mpc.STILL_SPEED`` the committed state has it at rest,
-    and one sliding in from just outside would look undelivered for a replan (measured:
-    "stuck" for one replan when its goal lay out of reach)."""
+    or in the measured one: slower than ``mpc.Tolerances.still_speed`` the committed state has
+    it at rest, and one sliding in from just outside would look undelivered for a replan
+    (measured: "stuck" for one replan when its goal lay out of reach)."""
     arriving = np.zeros(sc.n_objects, bool)
     for pos, vel in ((state.object_pos, state.object_vel),
                      (measured.object_pos, measured.object_vel)):

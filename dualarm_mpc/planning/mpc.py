@@ -87,10 +87,39 @@ from dualarm_mpc.planning.sequential import (
 
 log = logging.getLogger(__name__)
 
-STILL_SPEED = 0.005  # m/s: slower than this, an unheld object's velocity is measurement noise
-SNAP_POSITION = 0.02  # m: within this of the plan, a replan starts from the plan's own state
-SNAP_VELOCITY = 0.05  # m/s
-GRASP_SLACK = 0.02  # m: a committed grasp stands while the hand is this close to the grasp box
+# How far the measured state may be from the plan's and still count as on it (:class:`Tolerances`),
+# in boxes (table.object_size) and boxes per Δt: within SNAP_POSITION and SNAP_VELOCITY of the
+# plan, a replan starts from the plan's own state; an unheld object slower than STILL_SPEED is at
+# rest (its speed is measurement noise).
+SNAP_POSITION = 0.4
+SNAP_VELOCITY = 1.0
+STILL_SPEED = 0.1
+# m: a committed grasp stands while the hand is this close to the grasp box. The robot's own
+# tracking (a held box strays up to 9 mm from a Panda's tool, docs/robots.md), not the scene's
+# size, decides it.
+GRASP_SLACK = 0.02
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """The tolerances above in the scene's own units (m, m/s): with the paper's 5 cm boxes and
+    Δt = 1 s, 2 cm, 0.05 m/s and 5 mm/s. A scene scaled to a smaller robot keeps them in
+    proportion: fixed, 2 cm was a quarter of a quarter-scale goal's width, and snapped a box
+    shoved 6 mm out of its goal back into it, where every replan then had nothing to do
+    (measured: the SCARA on ``panda_vd``, rule 2, seed 1). Below the on-robot goal margin
+    (0.6 of a box, docs/scenarios.md), a box snapped to where its plan left it is in its goal
+    only where it truly is."""
+
+    snap_position: float
+    snap_velocity: float
+    still_speed: float
+
+    @staticmethod
+    def of(scenario: Scenario) -> Tolerances:
+        size, speed = scenario.table.object_size, scenario.table.object_size / scenario.robot.dt
+        return Tolerances(SNAP_POSITION * size, SNAP_VELOCITY * speed, STILL_SPEED * speed)
+
+
 # Lockstep: the time limit of every solve, long enough never to be reached (a wall-clock limit
 # would make the plan depend on the machine), finite for the backends that refuse infinity; what
 # bounds a solve instead is ``solver.replan_node_limit``, a count of branch-and-bound nodes.
@@ -154,6 +183,7 @@ class Replanner:
             raise ValueError(f"time_limit_s: {problem}")
         scenario.validate()
         self._scenario = scenario
+        self.tolerances = Tolerances.of(scenario)
         self.realtime = scenario.solver.realtime
         self._options = solve_options(scenario, time_limit_s if self.realtime
                                        else NO_TIME_LIMIT_S)
@@ -334,8 +364,8 @@ class Replanner:
         # At rest with no plan left: a search that outlasts the budget still applies when it
         # ends, so it may go on (from exactly at rest: the controller absorbs the noise).
         idle = bool(t >= s.horizon_end - 1e-9
-                    and np.abs(state.hand_vel).max(initial=0) < SNAP_VELOCITY
-                    and np.abs(state.object_vel).max(initial=0) < SNAP_VELOCITY)
+                    and np.abs(state.hand_vel).max(initial=0) < self.tolerances.snap_velocity
+                    and np.abs(state.object_vel).max(initial=0) < self.tolerances.snap_velocity)
         if idle:
             state = dataclasses.replace(state, hand_vel=np.zeros_like(state.hand_vel),
                                         object_vel=np.zeros_like(state.object_vel))
@@ -442,7 +472,7 @@ class Replanner:
             self._drop_ahead()
             return
         if self._ahead is not None and self._ahead.due == due and \
-                _same_problem(self._ahead.job, job):
+                _same_problem(self._ahead.job, job, self.tolerances):
             return
         self._drop_ahead()
         if self.realtime:
@@ -455,7 +485,7 @@ class Replanner:
     def _take_ahead(self, t: float, job: _Job) -> _Ahead | None:
         """The step planned ahead, where the replan at ``t`` is the one it was planned for and
         starts where it was predicted to, within the tolerances a replan snaps to the plan in
-        force by (``SNAP_POSITION``, ``SNAP_VELOCITY``); a plan ahead for other goals, or whose
+        force by the snap tolerances (:class:`Tolerances`); a plan ahead for other goals, or whose
         time has come without a match, is dropped."""
         ahead = self._ahead
         if ahead is None:
@@ -466,7 +496,7 @@ class Replanner:
         if t < ahead.due - 1e-9:
             return None
         self._ahead = None
-        if _same_problem(ahead.job, job):
+        if _same_problem(ahead.job, job, self.tolerances):
             return ahead
         ahead.job.options.interrupt.set()
         return None
@@ -517,37 +547,39 @@ class Replanner:
         start = job.problem.state
         was = np.concatenate([start.hand_pos, start.object_pos])
         speed = np.abs(np.concatenate([m.hand_vel, m.object_vel])).max(initial=0)
-        return bool(np.abs(pos - was).max(initial=0) < SNAP_POSITION and speed < SNAP_VELOCITY)
+        tol = self.tolerances
+        return bool(np.abs(pos - was).max(initial=0) < tol.snap_position
+                    and speed < tol.snap_velocity)
 
     def _committed_state(self, t: float, s: MpcState, m: State) -> State:
         """The state a replan starts from: the measured one, with the grasp the previous plan
         committed to for [t, t + Δt).
 
-        Where a hand or an object is within ``SNAP_POSITION`` / ``SNAP_VELOCITY`` of where the
+        Where a hand or an object is within the snap tolerances (:class:`Tolerances`) of where the
         previous plan put it, the plan's own (nominal) value is used: the controller absorbs
         millimetre tracking errors, and the shifted plan stays feasible (otherwise tight plans —
         throws at full speed from the edge of the hand range — turn infeasible by a hair at every
         replan and the robot dithers). Larger deviations (a knock, a short throw, a failed grasp)
-        are taken as measured. Unheld objects slower than ``STILL_SPEED`` are at rest. Hands
+        are taken as measured. Unheld objects slower than ``still_speed`` are at rest. Hands
         measured inside eq. (16)'s gap are moved apart (:func:`_apart`)."""
-        sc = self._scenario
+        sc, tol = self._scenario, self.tolerances
         ws = Rect.of(sc.robot.workspace)
         hand_pos = np.clip(m.hand_pos, ws.lo, ws.hi)
         hand_vel = np.clip(m.hand_vel, -sc.robot.max_speed, sc.robot.max_speed)
         obj_pos, obj_vel = np.array(m.object_pos, float), np.array(m.object_vel, float)
-        obj_vel[np.linalg.norm(obj_vel, axis=1) < STILL_SPEED] = 0.0
+        obj_vel[np.linalg.norm(obj_vel, axis=1) < tol.still_speed] = 0.0
         k, _ = step_at(s.plan, t)
         traj = s.plan.trajectory
         if 0 <= k < len(traj.hand_pos) and s.step_objects:
             # Hands on position alone: at a release the interpolator deliberately keeps the
             # hand at the previous step's speed (the throw), so its velocity differs by design.
-            close = np.abs(hand_pos - traj.hand_pos[k]).max(axis=1) < SNAP_POSITION
+            close = np.abs(hand_pos - traj.hand_pos[k]).max(axis=1) < tol.snap_position
             hand_pos[close], hand_vel[close] = traj.hand_pos[k][close], traj.hand_vel[k][close]
             # The step's objects only: the plan keeps the others where they were when it was
             # made (embed_step), which is no prediction for one still sliding (measured: a
             # thrown object snapped back 1–2 cm short of its goal, out of reach: "stuck").
-            close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < SNAP_POSITION)
-                     & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < SNAP_VELOCITY))
+            close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < tol.snap_position)
+                     & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < tol.snap_velocity))
             close &= np.isin(np.arange(sc.n_objects), s.step_objects)
             obj_pos[close], obj_vel[close] = traj.object_pos[k][close], traj.object_vel[k][close]
         if t < s.horizon_end - 1e-9:
@@ -594,7 +626,7 @@ def _record(s: MpcState, t: float, wall0: float, status: str, res: StepResult | 
     return new, r
 
 
-def _same_problem(a: _Job, b: _Job) -> bool:
+def _same_problem(a: _Job, b: _Job, tol: Tolerances) -> bool:
     """Whether two replans solve the same problem: the same objects, m_o and goals, the same
     grasps, and start states within the snap tolerances of each other."""
     if (a.problem.spec.objects, a.problem.spec.m_o, a.problem.scenario.task.goals,
@@ -606,9 +638,9 @@ def _same_problem(a: _Job, b: _Job) -> bool:
     if not np.array_equal(x.grasp, y.grasp):
         return False
     return all(np.abs(p - q).max(initial=0) <= tol for p, q, tol in (
-        (x.hand_pos, y.hand_pos, SNAP_POSITION), (x.hand_vel, y.hand_vel, SNAP_VELOCITY),
-        (x.object_pos, y.object_pos, SNAP_POSITION),
-        (x.object_vel, y.object_vel, SNAP_VELOCITY)))
+        (x.hand_pos, y.hand_pos, tol.snap_position), (x.hand_vel, y.hand_vel, tol.snap_velocity),
+        (x.object_pos, y.object_pos, tol.snap_position),
+        (x.object_vel, y.object_vel, tol.snap_velocity)))
 
 
 def _within(now: tuple[np.ndarray, np.ndarray], then: tuple[np.ndarray, np.ndarray] | None,
