@@ -26,12 +26,13 @@ planner replans every Δt = 1 s from the measured state while Drake simulates th
 * **object contacts** — the pairs of objects that touched while one of them moved (the summary's
   ``object_contacts``, from the plant's contact results every 20 ms): a box shoved by another.
 
-* **any robot** (issue 50) — ``--scenes table1_vd panda_vd table1_vc panda_vc`` runs each scene
-  on our SCARA and on the Panda pair (docs/robots.md), one after the other for each (rule,
-  seed): the wall and CPU time of the same task with the differential IK against the closed
-  form (``cpu_time_s``: the process's, threads included), the arms' clearance, the hands'
-  depth into boxes, and the largest distance from a hand to the box it held
-  (``max_held_offset_m``);
+* **any robot** (issue 50) — ``--scenes table1_vd panda_vd@scara panda_vd table1_vc
+  panda_vc@scara panda_vc`` runs each Panda scene (a quarter of the SCARA's, docs/robots.md) on
+  the Panda pair and on our SCARA (``…@scara``: the same scene, so the same plans to follow),
+  beside the SCARA's own full-size scene, one after the other for each (rule, seed): the wall
+  and CPU time of the same task with the differential IK against the closed form
+  (``cpu_time_s``: the process's, threads included), the arms' clearance, the hands' depth into
+  boxes, and the largest distance from a hand to the box it held (``max_held_offset_m``);
 * **on the clock** (issue 49) — ``--scenes table1_vc table1_vd`` runs §V-C (rule 2 only: rule 1
   cannot throw to its unreachable goals) beside §V-D; ``--busy N`` keeps N other processes busy
   (a loop each, ended with the bench) to measure a loaded machine; each run records its
@@ -43,8 +44,8 @@ Run it (from the repository root)::
     .venv/bin/python bench/closed_loop.py                       # rules 1 and 2, seeds 0-2
     .venv/bin/python bench/closed_loop.py --scenes table1_vc table1_vd --busy 2 \
         --set 'solver.realtime: true' --json bench/results/closed_loop-clock-realtime-busy.json
-    .venv/bin/python bench/closed_loop.py --scenes table1_vd panda_vd table1_vc panda_vc \
-        --json bench/results/closed_loop-robots.json
+    .venv/bin/python bench/closed_loop.py --scenes table1_vd panda_vd@scara panda_vd \
+        table1_vc panda_vc@scara panda_vc --json bench/results/closed_loop-robots.json
     .venv/bin/python bench/closed_loop.py --rules 2 --seeds 0,4 --time-limit 5
     .venv/bin/python bench/closed_loop.py --set 'goal_slots: true' --json bench/results/slots.json
 
@@ -85,6 +86,7 @@ from benchlib import (
 
 from dualarm_mpc.model.mld import REST_SPEED, in_goal
 from dualarm_mpc.model.scenario import (
+    Robot,
     ScenarioError,
     load_scenario,
     merge_overrides,
@@ -94,10 +96,14 @@ from dualarm_mpc.model.scenario import (
 from dualarm_mpc.sim.closed_loop import simulate
 
 SCENARIO = "table1_vd"
+# A Panda scene carried by our SCARA (``panda_vd@scara``): the same scene, so the same plans to
+# follow, and the wall times differ by what the robot costs (its inverse kinematics, controller
+# and physics) and not by the planning a scene needs.
+ON_SCARA = "@scara"
 # §V-D scenes (seeds, rules) and §V-C scenes (rule 2, one run), each on our SCARA and on the Panda
 # pair (docs/robots.md)
-VD_SCENES = (SCENARIO, "panda_vd")
-SCENES = (*VD_SCENES, "table1_vc", "panda_vc")
+VD_SCENES = (SCENARIO, "panda_vd", "panda_vd" + ON_SCARA)
+SCENES = (*VD_SCENES, "table1_vc", "panda_vc", "panda_vc" + ON_SCARA)
 M_O, N_O = 2, 6
 SOLUTION = ("optimal", "feasible", "kept")  # a plan in force after the replan
 NO_SOLVE = ("done", "stuck")  # replans that only hold the hands: every object done, or none can be
@@ -141,9 +147,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def overrides(rule: int, seed: int, time_limit: float | None, extra: list[dict],
               scene: str = SCENARIO) -> dict:
-    """The robot's settings (as ``dualarm-mpc simulate``), then this run's, then ``--set``."""
-    out = {**on_robot_overrides(load_scenario(scene)), "rule": rule, "seed": seed, "m_o": M_O,
-           "n_o": N_O}
+    """The robot's settings (as ``dualarm-mpc simulate``), then this run's (the SCARA in place of
+    the scene's robot for ``…@scara``), then ``--set``."""
+    out = {**on_robot_overrides(load_scenario(scene.removesuffix(ON_SCARA))), "rule": rule,
+           "seed": seed, "m_o": M_O, "n_o": N_O}
+    if scene.endswith(ON_SCARA):
+        out.update(robot_model=None, hand_frames=[], arm_bases=Robot().arm_bases)
     if time_limit is not None:
         out["solver"] = {"time_limit_s": time_limit}
     for more in extra:
@@ -183,7 +192,8 @@ def run_one(rule: int, seed: int, args: argparse.Namespace, scene: str = SCENARI
 
     t0 = time.perf_counter()
     try:
-        scenario = load_scenario(scene, overrides(rule, seed, args.time_limit, args.set, scene))
+        scenario = load_scenario(scene.removesuffix(ON_SCARA),
+                                 overrides(rule, seed, args.time_limit, args.set, scene))
         record["latency_s"] = scenario.replan_latency
         record["busy"] = getattr(args, "busy", 0)
         record["time_limit_s"] = scenario.solver.time_limit_s
