@@ -16,7 +16,8 @@ by the name's start (``table2``, ``solvers``, ``closed_loop``, ``robustness``, `
 ``table2-m2-apart.json`` and the two closed-loop records (``closed_loop.json``: objects apart,
 ``closed_loop-points.json``); ``clock`` is the closed loop on the clock, one row per
 ``closed_loop-clock-*.json`` (lockstep or real time, the latency, other processes kept busy);
-``robots`` is each scene on our SCARA and on the Panda pair (``closed_loop-robots.json``).
+``robots`` is each Panda scene on the Panda pair and on our SCARA, beside the SCARA's full-size
+scene (``closed_loop-robots.json``).
 Every table ends with the records it comes from: their date and the
 machine's speed.
 
