@@ -71,3 +71,21 @@ def test_without_a_witness_one_pass_is_the_plan() -> None:
     assert firsts == [] and plan.verified
     assert plan.unused_solve_time_s == 0.0
     assert plan.first_plan_s >= plan.total_solve_time_s - 1e-3
+
+
+def test_the_whole_task_under_rule_2_is_anytime_from_its_no_throw_witness() -> None:
+    """``plan --mo all`` under rule 2: the first plan is the whole task's no-throw witness, one
+    step over every object; the plan returned is no worse and says what it has not proven."""
+    scenario = dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 1, "random_objects": {"count": 3}, "rule": 2, "delivery": "rest"}))
+    firsts: list[dm.Plan] = []
+    plan = dm.plan(scenario, on_first_plan=firsts.append)
+    (first,) = firsts
+    assert [sorted(s.objects) for s in first.segments] == [[0, 1, 2]]
+    assert first.verified and first.first_plan_s == plan.first_plan_s
+    assert plan.verified and [sorted(s.objects) for s in plan.segments] == [[0, 1, 2]]
+    assert plan.total_cost <= first.total_cost + 1e-9
+    assert plan.total_bound <= plan.total_cost + 1e-9
+    step = plan.segments[0]
+    assert step.horizon_proven_minimal == (not step.horizons_undecided
+                                           and step.shorter_plan is None)
