@@ -578,8 +578,13 @@ class Replanner:
             # The step's objects only: the plan keeps the others where they were when it was
             # made (embed_step), which is no prediction for one still sliding (measured: a
             # thrown object snapped back 1–2 cm short of its goal, out of reach: "stuck").
+            # A held object's velocity is its hand's (eq. 8): its own measured one is contact
+            # jitter, which at a quarter of §V-D's size left a box held at the grasp box's edge
+            # 0.07 mm outside it, and every horizon infeasible.
+            held = np.asarray(traj.grasp[k]).any(axis=0)
             close = ((np.abs(obj_pos - traj.object_pos[k]).max(axis=1) < tol.snap_position)
-                     & (np.abs(obj_vel - traj.object_vel[k]).max(axis=1) < tol.snap_velocity))
+                     & (held | (np.abs(obj_vel - traj.object_vel[k]).max(axis=1)
+                                < tol.snap_velocity)))
             close &= np.isin(np.arange(sc.n_objects), s.step_objects)
             obj_pos[close], obj_vel[close] = traj.object_pos[k][close], traj.object_vel[k][close]
         if t < s.horizon_end - 1e-9:
