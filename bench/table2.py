@@ -175,8 +175,9 @@ def predicted_horizons(scenario, result) -> list[int]:
 
 
 def step_records(scenario, result, segments) -> list[dict]:
-    """The sequential steps run so far, with predictT where the plan is complete."""
-    steps = [s.to_json() for s in segments]
+    """The plan's sequential steps with their predictT where it is complete; else those run so
+    far (``segments``, of the pass that was stopped)."""
+    steps = [s.to_json() for s in (segments if result is None else result.segments)]
     if result is not None:
         for step, first in zip(steps, predicted_horizons(scenario, result), strict=True):
             step["predicted_horizon"] = first
@@ -210,13 +211,14 @@ def run_one(task: dict) -> dict:
                                     stop=stop), []
         except VerificationError as err:
             result, problems = err.plan, err.problems
-        if stop.is_set():  # a partial plan: its steps are in ``segments``
+        if result.partial:  # stopped before any complete plan: its steps are in ``segments``
             result = None
             record.update(status="run_budget", message=f"stopped after {task['run_budget_s']} s")
-        else:
+        else:  # stopped or not, a complete plan (the anytime plan's first, where stopped)
             record.update(status="verify_failed" if problems else "ok", problems=problems,
                           cost=result.total_cost, solve_time_s=result.total_solve_time_s,
-                          cpu_time_s=result.total_cpu_time_s, first_plan_s=result.first_plan_s)
+                          cpu_time_s=result.total_cpu_time_s, first_plan_s=result.first_plan_s,
+                          stopped=stop.is_set())
     except PlanningError as err:
         record.update(status="run_budget" if stop.is_set() else "planning_error",
                       message=str(err))
