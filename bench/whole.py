@@ -14,7 +14,9 @@ Table II's ``reach``: under ``reach`` an object may pass through its goal, and t
 then needs a second step, so it would not be one plan nor its certificate the task's. Under
 ``rest`` the steps of sequential transportation, joined, are a plan of the whole task, so its
 makespan is never below the whole plan's proven-minimal horizon. A plan that outlasts
-``--run-budget`` is stopped and counted apart.
+``--run-budget`` is stopped: under rule 2 the anytime plan's first (each step's no-throw
+witness, docs/search.md) is then the record's, with its gap (``stopped``); without a complete
+plan the run is counted apart.
 
 Run it (from the repository root)::
 
@@ -90,16 +92,16 @@ def plan_one(n: int, rule: int, seed: int, method: str, args: argparse.Namespace
         scenario = scenario_of(n, rule, seed, method, args)
         budget.start()
         plan = dm.plan(scenario, check_first=False, stop=stop)
-        if stop.is_set():
+        if plan.partial:  # stopped before any complete plan
             record.update(status="run_budget", message=f"stopped after {args.run_budget:g} s")
-        else:
+        else:  # stopped or not, a complete verified plan (the anytime plan's first, if stopped)
             stats = [s.search_stats or {} for s in plan.segments]
             record.update(
                 status="ok", cost=plan.total_cost, bound=plan.total_bound, gap=plan.gap,
                 horizon_proven_minimal=plan.horizon_proven_minimal,
                 first_plan_s=plan.first_plan_s, solve_time_s=plan.total_solve_time_s,
                 makespan=plan.trajectory.steps, steps=len(plan.segments),
-                horizons=[s.horizon for s in plan.segments],
+                horizons=[s.horizon for s in plan.segments], stopped=stop.is_set(),
                 **{k: sum(s.get(k, 0) for s in stats) for k in STATS})
     except dm.VerificationError as err:
         record.update(status="verify_failed", message="; ".join(err.problems))
