@@ -288,6 +288,9 @@ def summarize(records: list[dict], key: tuple) -> dict:
         # Plan.first_plan_s; older records have none)
         "mean_first_plan_s": statistics.fmean(r["first_plan_s"] for r in ok)
         if ok and all(r.get("first_plan_s") is not None for r in ok) else None,
+        # the plan's proven gap, (cost - the steps' bounds) / cost (recorded since Segment.bound)
+        "mean_gap": statistics.fmean(plan_gap(r) for r in ok)
+        if ok and all("bound" in s for r in ok for s in r["steps"]) else None,
         "time_ratio": mean_time / paper_time if ok and paper_time else None,
         "median_time_s": statistics.median(times) if ok else None,
         "max_time_s": max(times) if ok else None,
@@ -331,6 +334,12 @@ def monolithic_agreement(steps: list[dict]) -> dict:
              if abs(s["cost"] - s["monolithic_cost"]) <= 2e-4 * max(abs(s["cost"]), 1e-9)]
     return {"steps_compared": len(compared), "steps_monolithic_decided": len(decided),
             "steps_equal_to_monolithic": len(equal)}
+
+
+def plan_gap(run: dict) -> float:
+    """A verified run's proven gap: (cost − Σ steps' bounds) / cost, as ``Plan.gap``."""
+    bound = sum(s["bound"] for s in run["steps"])
+    return max(0.0, (run["cost"] - bound) / run["cost"]) if run["cost"] > 0 else 0.0
 
 
 def summary_rows(records: list[dict]) -> list[dict]:
