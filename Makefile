@@ -50,8 +50,9 @@ PYTEST := $(BIN)/python -m pytest -q -rs -n auto --dist worksteal
 test: $(VENV)/.installed-test
 	$(PYTEST) -m 'not falsify'
 
-# The whole-task search against the monolithic MILP on seeds 0-9 (tests/test_whole.py): the MILP
-# proves each in 10 s to several minutes, an hour in all; `make test` runs seed 1.
+# The whole-task search against the monolithic MILP on 3 and 4 objects, seeds 0-9
+# (tests/test_whole.py): the MILP proves each in 10 s to several minutes, hours in all; `make
+# test` runs 3 objects, seed 1.
 falsify: $(VENV)/.installed-test
 	$(PYTEST) -m falsify
 
