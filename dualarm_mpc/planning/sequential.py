@@ -214,10 +214,15 @@ def as_step(problem: StepProblem, found: StepResult, options: SolveOptions | Non
     horizon proofs hold for the restriction only; so its bound is 0 and the horizons from
     predictT below its own are undecided."""
     below = tuple(range(predict_horizon(problem, options), found.horizon))
+    return dataclasses.replace(unproven(found), witness_cost=found.cost,
+                               witness_horizon=found.horizon, proofs=(), undecided=below,
+                               passed_over=None)
+
+
+def unproven(found: StepResult) -> StepResult:
+    """The witness ``found`` without its bound, which holds for the restriction only."""
     return dataclasses.replace(found, bound=0.0, gap=1.0 if found.cost > 0 else 0.0,
-                               status=Status.FEASIBLE if found.cost > 0 else Status.OPTIMAL,
-                               witness_cost=found.cost, witness_horizon=found.horizon,
-                               proofs=(), undecided=below, passed_over=None)
+                               status=Status.FEASIBLE if found.cost > 0 else Status.OPTIMAL)
 
 
 def witness(problem: StepProblem, options: SolveOptions | None,
@@ -331,9 +336,8 @@ def below_witness(problem: StepProblem, found: StepResult, options: SolveOptions
         best = first  # T₁'s search, from the witness, is one of these
     elif at_witness is not None and at_witness.status.has_solution:
         best = at_witness  # the witness or cheaper, with the search's bound
-    else:  # the witness's own bound holds for the restriction only
-        best = dataclasses.replace(found, bound=0.0, gap=1.0 if found.cost > 0 else 0.0,
-                                   status=Status.FEASIBLE if found.cost > 0 else Status.OPTIMAL)
+    else:
+        best = unproven(found)
     passed_over = (first.horizon, first.cost) if first is not None and \
         first.horizon < best.horizon else None
     shorter = tuple(t for t in undecided if t < best.horizon)
