@@ -4,8 +4,11 @@ What it measures: for n objects of ``table1_vd`` (``random_objects.count`` n, dr
 each rule and seed, the scene planned twice through
 :func:`dualarm_mpc.plan` (every plan verified by ``verify.py``): as one task
 (:func:`dualarm_mpc.whole_task`, ``plan --mo all``: m_o = n_o = n, one exact search over every
-object) and by sequential transportation with ``--sequential`` (m_o, n_o) (Algorithm 1, n_o at
-most n). Per plan: wall time until it was verified (``first_plan_s``), cost (17), the proven
+object, anytime from sequential transportation's plan at ``task.FIRST_PASS`` joined into one
+step) and by sequential transportation with ``--sequential`` (m_o, n_o) (Algorithm 1, n_o at
+most n). Per plan: wall time until the first plan was verified (``first_plan_s``) and until the
+run ended (``wall_time_s``), whether the plan is the search's or still the first (``joined``),
+cost (17), the proven
 bound and gap, whether every horizon is proven minimal, the makespan (steps of Δt), the steps,
 and the skeleton search's work (``search_stats`` summed over the steps: expansions, prunes,
 programs, their wall time). What sequential transportation gives away is the difference on the
@@ -14,9 +17,11 @@ Table II's ``reach``: under ``reach`` an object may pass through its goal, and t
 then needs a second step, so it would not be one plan nor its certificate the task's. Under
 ``rest`` the steps of sequential transportation, joined, are a plan of the whole task, so its
 makespan is never below the whole plan's proven-minimal horizon. A plan that outlasts
-``--run-budget`` is stopped: under rule 2 the anytime plan's first (each step's no-throw
-witness, docs/search.md) is then the record's, with its gap (``stopped``); without a complete
-plan the run is counted apart.
+``--run-budget`` is stopped (``stopped``): the best complete plan so far is the record's, with
+its gap (the whole task's first plan where the search found none better; under rule 2 the
+sequential plan's first pass, each step's no-throw witness, docs/search.md); without a complete
+plan the run is counted apart. Records written before the whole task's first plan (2026-12-06)
+have no ``joined``: their plans are the search's, and their first plan its.
 
 Run it (from the repository root)::
 
@@ -102,6 +107,7 @@ def plan_one(n: int, rule: int, seed: int, method: str, args: argparse.Namespace
                 first_plan_s=plan.first_plan_s, solve_time_s=plan.total_solve_time_s,
                 makespan=plan.trajectory.steps, steps=len(plan.segments),
                 horizons=[s.horizon for s in plan.segments], stopped=stop.is_set(),
+                joined=plan.segments[0].sequential_steps is not None,
                 **{k: sum(s.get(k, 0) for s in stats) for k in STATS})
     except dm.VerificationError as err:
         record.update(status="verify_failed", message="; ".join(err.problems))
@@ -125,8 +131,9 @@ def mean(runs: list[dict], key: str, spec: str) -> str:
 def summary_table(runs: list[dict]) -> str:
     """Per (n, rule): the whole plans (verified, proven, time, work) and both methods' means
     over the seeds where both gave a verified plan."""
-    header = ["objects", "rule", "whole: verified plans", "proven optimal at a proven-minimal "
-              "horizon", "largest gap", "mean time to the first verified plan (s)",
+    header = ["objects", "rule", "whole: verified plans", "the search's own",
+              "proven optimal at a proven-minimal horizon", "largest gap",
+              "mean time to the first verified plan (s)", "mean time (s)",
               "mean expansions / prunes / programs", "mean leaf time (s)", "sequential: "
               "verified plans", "mean time (s)", "paired seeds", "mean cost, whole / sequential",
               "mean makespan (Δt), whole / sequential"]
@@ -140,11 +147,13 @@ def summary_table(runs: list[dict]) -> str:
                 if of["whole"][s]["status"] == "ok" and
                 of["sequential"].get(s, {}).get("status") == "ok"]
         proven = sum(r["gap"] <= 1e-4 and r["horizon_proven_minimal"] for r in whole)
+        searched = [r for r in whole if not r.get("joined")]
         pair = [w for w, _ in both], [s for _, s in both]
         rows.append([
-            str(n), str(rule), f"{len(whole)}/{len(of['whole'])}", f"{proven}/{len(whole)}",
+            str(n), str(rule), f"{len(whole)}/{len(of['whole'])}",
+            f"{len(searched)}/{len(whole)}", f"{proven}/{len(whole)}",
             fmt(max((r["gap"] for r in whole), default=None), ".3f"),
-            mean(whole, "first_plan_s", ".1f"),
+            mean(whole, "first_plan_s", ".1f"), mean(whole, "wall_time_s", ".1f"),
             " / ".join(mean(whole, k, ".0f") for k in STATS[:3]),
             mean(whole, "leaf_time_s", ".1f"), f"{len(seq)}/{len(of['sequential'])}",
             mean(seq, "first_plan_s", ".1f"), str(len(both)),
@@ -156,18 +165,22 @@ def summary_table(runs: list[dict]) -> str:
 def seed_table(runs: list[dict]) -> str:
     """Per scene: each method's cost, makespan and time (what the decomposition gives away)."""
     by = {(r["objects"], r["rule"], r["seed"], r["method"]): r for r in runs}
-    header = ["objects", "rule", "seed", "whole: cost", "gap", "makespan (Δt)",
-              "time (s)", "sequential: cost", "makespan (Δt)", "time (s)"]
+    header = ["objects", "rule", "seed", "whole: plan", "cost", "gap", "makespan (Δt)",
+              "first plan (s)", "time (s)", "sequential: cost", "makespan (Δt)", "time (s)"]
     rows = []
     for n, rule, seed in sorted({k[:3] for k in by}):
         cells = [str(n), str(rule), str(seed)]
         for method in METHODS:
             r = by.get((n, rule, seed, method), {"status": "not run"})
             if r["status"] != "ok":
-                cells += [r["status"]] + ["—"] * (3 if method == "whole" else 2)
+                cells += [r["status"]] + ["—"] * (5 if method == "whole" else 2)
                 continue
-            cells += [f"{r['cost']:.3f}"] + ([f"{r['gap']:.3f}"] if method == "whole" else [])
-            cells += [str(r["makespan"]), f"{r['first_plan_s']:.1f}"]
+            if method == "whole":
+                cells += ["sequential's, joined" if r.get("joined") else "the search's",
+                          f"{r['cost']:.3f}", f"{r['gap']:.3f}", str(r["makespan"]),
+                          f"{r['first_plan_s']:.1f}", f"{r['wall_time_s']:.1f}"]
+            else:
+                cells += [f"{r['cost']:.3f}", str(r["makespan"]), f"{r['first_plan_s']:.1f}"]
         rows.append(cells)
     return table(header, rows)
 

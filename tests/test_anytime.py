@@ -1,14 +1,18 @@
 """The anytime plan (``dm.plan``'s two passes, docs/search.md): under a rule that allows throws,
 each step's no-throw witness gives a complete plan first, verified against the scenario's own
 rules and carrying no claim beyond its own; Algorithm 1 then refines it, and a stop between the
-passes returns the first plan whole."""
+passes returns the first plan whole. The whole task (``--mo all``) is anytime from sequential
+transportation's plan, joined into one step."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import pytest
 
 import dualarm_mpc as dm
 from dualarm_mpc.model.verify import verify
+from dualarm_mpc.planning.task import FIRST_PASS
 
 
 def four_objects(rule: int) -> dm.Scenario:
@@ -73,19 +77,65 @@ def test_without_a_witness_one_pass_is_the_plan() -> None:
     assert plan.first_plan_s >= plan.total_solve_time_s - 1e-3
 
 
-def test_the_whole_task_under_rule_2_is_anytime_from_its_no_throw_witness() -> None:
-    """``plan --mo all`` under rule 2: the first plan is the whole task's no-throw witness, one
-    step over every object; the plan returned is no worse and says what it has not proven."""
+def test_the_whole_task_under_rule_2_searches_from_its_no_throw_witness() -> None:
+    """``plan --mo all`` under rule 2: after the first plan (sequential transportation's,
+    joined), the whole task's search starts from its no-throw witness, one step over every
+    object; the plan returned is no worse than either and says what it has not proven."""
     scenario = dm.whole_task(dm.load_scenario("table1_vd", {
         "seed": 1, "random_objects": {"count": 3}, "rule": 2, "delivery": "rest"}))
     firsts: list[dm.Plan] = []
     plan = dm.plan(scenario, on_first_plan=firsts.append)
     (first,) = firsts
-    assert [sorted(s.objects) for s in first.segments] == [[0, 1, 2]]
+    assert [s.objects for s in first.segments] == [[0, 1, 2]]
+    assert first.segments[0].sequential_steps >= 2
     assert first.verified and first.first_plan_s == plan.first_plan_s
     assert plan.verified and [sorted(s.objects) for s in plan.segments] == [[0, 1, 2]]
-    assert plan.total_cost <= first.total_cost + 1e-9
-    assert plan.total_bound <= plan.total_cost + 1e-9
+    assert (plan.makespan, plan.total_cost) <= (first.makespan, first.total_cost + 1e-9)
     step = plan.segments[0]
+    assert step.sequential_steps is None and step.witness_cost is not None
+    assert step.cost <= step.witness_cost + 1e-9
+    assert plan.total_bound <= plan.total_cost + 1e-9
     assert step.horizon_proven_minimal == (not step.horizons_undecided
                                            and step.shorter_plan is None)
+
+
+def whole_of_four() -> dm.Scenario:
+    return dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 1, "random_objects": {"count": 4}, "rule": 1, "delivery": "rest"}))
+
+
+def test_the_whole_task_is_anytime_from_sequential_transportation() -> None:
+    """``plan --mo all``: the first plan is sequential transportation's at ``FIRST_PASS``,
+    joined into one step over every object, verified as the whole task's and claiming nothing
+    beyond being a plan; the whole-task search's plan, proven, replaces it and is never
+    longer."""
+    scenario = whole_of_four()
+    firsts: list[dm.Plan] = []
+    plan = dm.plan(scenario, on_first_plan=firsts.append)
+    (first,) = firsts
+    (joined,) = first.segments
+    m_o, n_o = FIRST_PASS
+    steps = dm.plan(dataclasses.replace(scenario, task=dataclasses.replace(
+        scenario.task, m_o=m_o, n_o=min(n_o, 4))))
+    assert joined.sequential_steps == len(steps.segments) >= 2
+    assert first.makespan == steps.makespan
+    assert first.total_cost == pytest.approx(steps.total_cost)
+    assert first.verified and verify(scenario, first).ok
+    assert joined.objects == [0, 1, 2, 3] and joined.delivered == [0, 1, 2, 3]
+    assert joined.bound == 0 and joined.status == "feasible" and not joined.horizon_proven_minimal
+    (step,) = plan.segments
+    assert step.sequential_steps is None
+    assert step.proven_optimal and step.horizon_proven_minimal
+    assert plan.makespan <= first.makespan and plan.verified
+    assert plan.first_plan_s == first.first_plan_s
+    assert plan.total_solve_time_s == pytest.approx(
+        step.solve_time_s + plan.unused_solve_time_s, abs=1e-4)
+    assert plan.unused_solve_time_s >= joined.solve_time_s - 1e-3
+
+
+def test_a_stop_after_the_whole_tasks_first_plan_returns_it_whole() -> None:
+    stop = dm.Interrupt()
+    plan = dm.plan(whole_of_four(), stop=stop, on_first_plan=lambda first: stop.set())
+    (joined,) = plan.segments
+    assert plan.verified and not plan.partial and joined.sequential_steps >= 2
+    assert all(d is not None for d in plan.delivered_step)

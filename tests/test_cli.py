@@ -422,5 +422,26 @@ def test_plan_mo_all_plans_every_object_in_one_step_with_its_certificate(tmp_pat
     first = data["segments"][0]
     assert first["objects"] == [0, 1, 2] and first["gap"] <= 0.01
     assert first["bound"] <= first["cost"] and first["search_stats"]["expansions"] >= 1
-    assert data["first_plan_s"] >= data["total_solve_time_s"] - 1e-3
     assert data["total_bound"] == pytest.approx(sum(s["bound"] for s in data["segments"]))
+    # anytime from sequential transportation's plan, joined (task.FIRST_PASS)
+    assert "first verified plan: cost " in stdout and "steps, joined" in stdout
+    assert first["sequential_steps"] is None  # the search's plan replaced it
+    assert 0 < data["first_plan_s"] <= data["total_solve_time_s"] + 1e-3
+    assert data["unused_solve_time_s"] > 0
+
+
+def test_plan_budget_writes_the_best_complete_plan_when_it_runs_out(tmp_path, capsys) -> None:
+    """``--budget``: the whole task's search, stopped, leaves its first plan (sequential
+    transportation's, joined into one step), written whole and verified, exit 0."""
+    out = tmp_path / "plan.json"
+    assert main(["plan", "table1_vd", "--mo", "all", "--seed", "2", "--rule", "1",
+                 "--set", "random_objects: {count: 5}", "--delivery", "rest",
+                 "--budget", "15", "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "budget of 15 s spent: the best complete plan so far" in stdout
+    assert "verified: " in stdout and "certificate: " in stdout
+    data = json.loads(out.read_text())
+    (step,) = data["segments"]
+    assert step["sequential_steps"] >= 2 and step["objects"] == [0, 1, 2, 3, 4]
+    assert step["bound"] == 0 and not step["horizon_proven_minimal"]
+    assert all(d is not None for d in data["delivered_step"])

@@ -62,6 +62,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--export", type=directory, action=Once, metavar="DIR",
                    help="write the monolithic MILP of each horizon tried as an MPS file here, "
                    "with index.json")
+    p.add_argument("--budget", type=seconds, action=Once, metavar="S",
+                   help="stop searching after S wall seconds: the best complete plan so far is "
+                   "written, with its certificate")
     p.set_defaults(run=cmd_plan, parser=p)
     p = sub.add_parser("simulate", help="run the receding-horizon planner on the robot in Drake")
     scenario_arguments(p)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -189,12 +190,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
                   f"{res.solve_time_s:>9.2f}{by}", flush=True)
 
     def first_plan(first) -> None:  # the anytime plan's first pass: its steps again, searched
-        print(f"first verified plan: cost {first.total_cost:.3f} after {first.first_plan_s:.2f} s"
-              " (each step's no-throw witness); Algorithm 1 on each step now", flush=True)
+        joined = first.segments[0].sequential_steps
+        how = (f"sequential transportation's {joined} steps, joined); the whole task in one "
+               "search now" if joined else
+               "each step's no-throw witness); Algorithm 1 on each step now")
+        print(f"first verified plan: cost {first.total_cost:.3f}, {first.makespan} steps, after "
+              f"{first.first_plan_s:.2f} s ({how}", flush=True)
         count[0] = headed[0] = 0
 
     stop = Interrupt()
     problems: list[str] = []
+    budget = None if args.budget is None else threading.Timer(args.budget, stop.set)
+    if budget is not None:
+        budget.daemon = True
+        budget.start()
     try:
         result = interruptible(lambda: plan(scenario, check_first=False, progress=progress,
                                             on_try=tried, stop=stop, on_first_plan=first_plan),
@@ -207,6 +216,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
             _save_plan(err.partial, args, scenario)
         return _failed_writes(CONFLICT if err.proven else FAILED,
                               _exported(export, args) and written)
+    finally:
+        if budget is not None:
+            budget.cancel()
     exported = _exported(export, args)
     resting = sum(d is not None for d in result.delivered_step)
     already = f" ({scenario.n_objects - left} already there)" if left < scenario.n_objects else ""
@@ -214,7 +226,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
           f"{result.total_cost:.3f}, solve time {result.total_solve_time_s:.2f} s "
           f"(CPU {result.total_cpu_time_s:.2f} s)")
     written = _save_plan(result, args, scenario) and exported
-    if stop.is_set():  # a signal: planning stopped, or verification was not waited for
+    if stop.is_set() and not received:  # --budget spent: the best complete plan, or none
+        print(f"budget of {args.budget:g} s spent: "
+              + ("the best complete plan so far" if not result.partial else
+                 f"no complete plan, {len(result.segments)} step(s) written"), flush=True)
+        if result.partial:
+            return FAILED
+    elif stop.is_set():  # a signal: planning stopped, or verification was not waited for
         print(f"interrupted by {signal_name()} after {len(result.segments)} step(s): what was "
               "written is " + ("partial" if result.partial else "whole")
               + ("" if result.verified else " and not verified"), file=sys.stderr)

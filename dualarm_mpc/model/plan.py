@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -102,6 +102,9 @@ class Segment:
     # The skeleton search's work on the step's horizon, where a search ran
     # (``skeleton.SearchStats``): nodes expanded, nodes pruned, seconds in leaf programs
     search_stats: dict | None = None
+    # A whole-task step joined from this many sequential steps (``Plan.as_one_step``: the
+    # first plan of ``--mo all``), which claims nothing beyond being a plan; None: searched
+    sequential_steps: int | None = None
 
     def to_json(self) -> dict:
         """The step as an entry of the plan file's ``segments`` (docs/formats.md)."""
@@ -125,6 +128,7 @@ class Segment:
             [self.shorter_plan[0], round(self.shorter_plan[1], 9)],
             "bound": round(self.bound, 9),
             "search_stats": self.search_stats,
+            "sequential_steps": self.sequential_steps,
         }
 
     @property
@@ -168,6 +172,32 @@ class Plan:
     @property
     def total_cost(self) -> float:
         return float(sum(s.cost for s in self.segments))
+
+    @property
+    def makespan(self) -> int:
+        """The plan's length in steps of Δt: the horizons of its steps added up."""
+        return int(sum(s.horizon for s in self.segments))
+
+    def as_one_step(self) -> Plan:
+        """This complete plan as one step over every object: the whole task's plan
+        (``--mo all``) that sequential transportation gives. Its steps' certificates hold for
+        the steps only, so the step claims nothing beyond being a plan: bound 0, status
+        feasible, its horizon not proven minimal."""
+        steps = self.segments
+        stats: dict = {}
+        for s in steps:
+            for key, value in (s.search_stats or {}).items():
+                stats[key] = round(stats.get(key, 0) + value, 4)
+        cost = self.total_cost
+        one = Segment(
+            objects=sorted({j for s in steps for j in s.objects}),
+            delivered=sorted({j for s in steps for j in s.delivered}), horizon=self.makespan,
+            status="feasible" if cost > 0 else "optimal",
+            solve_time_s=float(sum(s.solve_time_s for s in steps)), cost=cost,
+            binaries=max((s.binaries for s in steps), default=0),
+            gap=1.0 if cost > 0 else 0.0, cpu_time_s=self.total_cpu_time_s,
+            search_stats=stats or None, sequential_steps=len(steps))
+        return replace(self, segments=[one])
 
     @property
     def total_bound(self) -> float:

@@ -18,6 +18,10 @@ from dualarm_mpc.planning.sequential import HorizonTried, KeptSteps, PlanningErr
 
 __all__ = ["ConflictError", "VerificationError", "plan", "whole_task"]
 
+# (m_o, n_o) of the sequential transportation whose plan, joined into one step, is the whole
+# task's first (``plan --mo all``): Table II's first row, the quickest.
+FIRST_PASS = (2, 5)
+
 
 class ConflictError(PlanningError):
     """The consistency check proved that the task, the rules and the bounds admit no plan;
@@ -59,24 +63,29 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     """Plan every object of ``scenario`` into its goal and verify the plan (re-simulated through
     the model, each step's LTL checked by the independent evaluator).
 
-    An anytime plan, in two passes where the rules allow throws: first each step's no-throw
-    witness (a complete plan soon, verified against the scenario's own rules), then Algorithm 1
-    by the horizon policy, which takes every search of the first pass it meets again; the
-    cheaper complete plan is returned, the first where ``stop`` ends the second. Where no step
-    has a witness (rule 1, or none in reach) the first pass is Algorithm 1 itself.
+    An anytime plan: a complete verified plan first, then the search that may better it.
+    Of the whole task (:func:`whole_task`), the first is sequential transportation's at
+    ``FIRST_PASS``, joined into one step (:meth:`~dualarm_mpc.model.plan.Plan.as_one_step`), and
+    the whole-task search's plan replaces it where it is proven (optimal at a proven-minimal
+    horizon), or its makespan is shorter, or as short and cheaper. Within it, and for every
+    other task, where the rules allow throws the first is each step's no-throw witness, then
+    Algorithm 1 by the horizon policy, which takes every search of the first pass it meets
+    again, and the cheaper complete plan is returned. Where neither applies (rule 1, or no
+    witness in reach) Algorithm 1 is the one pass.
 
     ``check_first``: run the consistency check (without its joint step) first and raise
     :class:`ConflictError` on a conflict. ``progress`` hears of each sequential step of each
-    pass, ``on_try`` of each horizon tried, ``on_first_plan`` of the first pass's verified plan
-    when a second pass follows. ``stop``, once set (from another thread), ends the search: the
-    best complete plan so far, or else the steps planned so far as a partial plan
-    (``partial``), not verified.
+    pass, ``on_try`` of each horizon tried, ``on_first_plan`` of the first verified plan when a
+    search follows it. ``stop``, once set (from another thread), ends the search: the best
+    complete plan so far, or else the steps planned so far as a partial plan (``partial``), not
+    verified.
 
     Raises :class:`~dualarm_mpc.planning.sequential.PlanningError` when a step has no plan
-    (``proven``: none exists up to the horizon cap), :class:`VerificationError` when the plan
-    fails verification. Returns the plan with ``verified`` true otherwise, and its
-    ``first_plan_s``: the wall seconds from the start of planning (after the check) until it
-    passed verification. ``scenario`` is checked first as ``load_scenario`` checks it
+    (``proven``: none exists up to the horizon cap) and no complete plan exists,
+    :class:`VerificationError` when a plan fails verification. Returns the plan with
+    ``verified`` true otherwise, and its ``first_plan_s``: the wall seconds from the start of
+    planning (after the check) until the first complete plan passed verification.
+    ``scenario`` is checked first as ``load_scenario`` checks it
     (:meth:`~dualarm_mpc.model.scenario.Scenario.validate`)."""
     scenario.validate()
     if check_first:
@@ -87,12 +96,64 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     if stop is not None:
         options = dataclasses.replace(options, interrupt=stop)
     t0 = time.perf_counter()
+    first = _sequential_first(scenario, options, progress, on_try, t0)
+    if first is None:
+        return _passes(scenario, options, progress, on_try, on_first_plan, t0)
+    if options.stopped():
+        return first
+    if on_first_plan:
+        on_first_plan(first)
+    try:
+        whole = _passes(scenario, options, progress, on_try, None, t0)
+    except PlanningError as err:
+        if isinstance(err, VerificationError) or err.proven:
+            raise  # a defect, or a proof that contradicts the first plan: never hidden
+        whole = None  # out of time: the first plan stands
+    # The search's plan where it answers the task as posed (every step optimal at a proven
+    # minimal horizon; under delivery ``reach`` a step of rests may follow the whole step and
+    # make it longer) or is no worse by the whole task's order: makespan, then cost (eq. 17).
+    better = whole is not None and not whole.partial and (
+        (whole.horizon_proven_minimal and all(s.proven_optimal for s in whole.segments))
+        or (whole.makespan, whole.total_cost) <= (first.makespan, first.total_cost))
+    best = whole if better else first
+    spent = first.total_solve_time_s + (0.0 if whole is None else whole.total_solve_time_s)
+    return dataclasses.replace(best, first_plan_s=first.first_plan_s,
+                               unused_solve_time_s=max(0.0, spent - sum(
+                                   s.solve_time_s for s in best.segments)))
+
+
+def _sequential_first(scenario: Scenario, options, progress, on_try, t0: float) -> Plan | None:
+    """The whole task's first plan: sequential transportation at ``FIRST_PASS``, joined into
+    one step and verified as the whole task's; None where ``scenario`` is not a whole task of
+    more than ``FIRST_PASS``'s m_o objects, or sequential transportation gives no complete plan
+    (the whole-task search then runs alone and says why)."""
+    task, n = scenario.task, scenario.n_objects
+    m_o, n_o = FIRST_PASS
+    if not task.m_o == task.n_o == n > m_o:
+        return None
+    steps = dataclasses.replace(scenario, task=dataclasses.replace(task, m_o=m_o,
+                                                                   n_o=min(n_o, n)))
+    try:
+        found = transport(steps, options, progress, on_try)
+    except PlanningError:
+        return None
+    if found.partial or not verify(steps, found).ok:
+        return None
+    one = found.as_one_step()
+    if not verify(scenario, one).ok:  # the joined steps break a rule of the whole task
+        return None
+    return dataclasses.replace(one, verified=True, first_plan_s=time.perf_counter() - t0)
+
+
+def _passes(scenario: Scenario, options, progress, on_try, on_first_plan, t0: float) -> Plan:
+    """Algorithm 1 by the scenario's policies, anytime from each step's no-throw witness where
+    the rules allow throws (:func:`plan`)."""
     kept = KeptSteps()
     first = transport(scenario, options, progress, on_try, kept, quick=True)
-    if first.partial or (stop is not None and stop.is_set()):
+    if first.partial:
         return first
     first = _verified(scenario, first, time.perf_counter() - t0)
-    if not kept.any_witness:  # the second pass would take every step of the first
+    if options.stopped() or not kept.any_witness:  # without a witness, the second = the first
         return first
     if on_first_plan:
         on_first_plan(first)
