@@ -11,8 +11,11 @@ import dataclasses
 import pytest
 
 import dualarm_mpc as dm
+from dualarm_mpc.milp.horizon import StepResult
+from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.verify import verify
-from dualarm_mpc.planning.task import FIRST_PASS
+from dualarm_mpc.planning.sequential import HorizonTried
+from dualarm_mpc.planning.task import FIRST_PASS, _Horizons
 
 
 def four_objects(rule: int) -> dm.Scenario:
@@ -133,9 +136,56 @@ def test_the_whole_task_is_anytime_from_sequential_transportation() -> None:
     assert plan.unused_solve_time_s >= joined.solve_time_s - 1e-3
 
 
-def test_a_stop_after_the_whole_tasks_first_plan_returns_it_whole() -> None:
+@pytest.fixture(scope="module")
+def stopped_at_first():
     stop = dm.Interrupt()
-    plan = dm.plan(whole_of_four(), stop=stop, on_first_plan=lambda first: stop.set())
+    return dm.plan(whole_of_four(), stop=stop, on_first_plan=lambda first: stop.set())
+
+
+def test_a_stop_after_the_whole_tasks_first_plan_returns_it_whole(stopped_at_first) -> None:
+    plan = stopped_at_first
     (joined,) = plan.segments
     assert plan.verified and not plan.partial and joined.sequential_steps >= 2
     assert all(d is not None for d in plan.delivered_step)
+    # nothing decided below its horizon: no search ran
+    assert joined.horizons_undecided == list(range(1, joined.horizon))
+    assert not joined.horizon_proven_minimal
+
+
+def test_the_first_plan_carries_the_horizons_the_stopped_search_proved_empty(
+        stopped_at_first) -> None:
+    """From predictT (the first horizon the search tries), each horizon proven empty in a row
+    leaves the undecided ones; all of them proven, the joined plan's horizon is minimal."""
+    (joined,) = stopped_at_first.segments
+    T = joined.horizon
+
+    def heard(*results: tuple[int, Status]) -> _Horizons:
+        horizons = _Horizons(None)
+        for horizon, status in results:
+            horizons(HorizonTried(1, None, StepResult.no_plan(status, horizon)))
+        horizons(HorizonTried(2, None, StepResult.no_plan(Status.INFEASIBLE, T - 1)))
+        return horizons
+
+    (step,) = heard((T - 5, Status.INFEASIBLE), (T - 3, Status.INFEASIBLE),
+                    (T - 4, Status.TIME_LIMIT)).certify(stopped_at_first).segments
+    assert step.horizons_undecided == [T - 4, T - 3, T - 2, T - 1]  # T − 3: not in a row
+    assert not step.horizon_proven_minimal
+    (step,) = heard(*((t, Status.INFEASIBLE) for t in range(T - 3, T))).certify(
+        stopped_at_first).segments
+    assert step.horizons_undecided == [] and step.horizon_proven_minimal
+    assert step.bound == 0 and step.status == "feasible"  # the cost is still not proven
+
+
+def test_the_whole_search_reaches_past_the_horizon_cap_up_to_the_first_plan() -> None:
+    """No step of sequential transportation needs more than 20 steps here, the whole task
+    needs 23: the first plan, 31 steps long, lifts the search's cap to its own horizon (none
+    longer can better it), and the search's plan replaces it."""
+    scenario = dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 1, "random_objects": {"count": 5}, "rule": 1, "delivery": "rest",
+        "solver": {"max_horizon": 20}}))
+    firsts: list[dm.Plan] = []
+    plan = dm.plan(scenario, on_first_plan=firsts.append)
+    (first,) = firsts
+    (step,) = plan.segments
+    assert step.sequential_steps is None and step.horizon_proven_minimal
+    assert 20 < step.horizon < first.makespan and plan.verified

@@ -118,7 +118,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from dualarm_mpc.milp.horizon import HorizonProgram
     from dualarm_mpc.milp.solver import Interrupt
     from dualarm_mpc.planning.sequential import PlanningError
-    from dualarm_mpc.planning.task import VerificationError, plan
+    from dualarm_mpc.planning.task import VerificationError, first_pass, plan
 
     scenario = _load(args)
     task = scenario.task
@@ -134,6 +134,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     count = [0]
     said = [time.perf_counter()] * 2  # the last line printed, the step's start
     headed = [0]  # the last step whose header is printed
+    sequential = first_pass(scenario)  # the whole task's first plan's steps, if any
+    searching = [False]  # past the first plan
 
     def numbers(objects) -> str:
         return ",".join(task.objects[j].name.removeprefix("object") for j in objects)
@@ -155,7 +157,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         count[0] += 1
         header(count[0], seg.objects)
         names = numbers(seg.delivered)
-        fewer = len(seg.objects) < task.m_o  # the last objects: m_o shrinks to them
+        m_o = task.m_o if sequential is None or searching[0] else sequential.task.m_o
+        fewer = len(seg.objects) < m_o  # the last objects: m_o shrinks to them
         notes = [f"m_o = {len(seg.objects)}: the objects left"] if fewer else []
         if seg.witness_cost is not None:
             notes.append(f"witness {seg.witness_cost:.3f} at T = {seg.witness_horizon}")
@@ -190,6 +193,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
                   f"{res.solve_time_s:>9.2f}{by}", flush=True)
 
     def first_plan(first) -> None:  # the anytime plan's first pass: its steps again, searched
+        searching[0] = True
         joined = first.segments[0].sequential_steps
         how = (f"sequential transportation's {joined} steps, joined); the whole task in one "
                "search now" if joined else

@@ -182,7 +182,7 @@ class Plan:
         """This complete plan as one step over every object: the whole task's plan
         (``--mo all``) that sequential transportation gives. Its steps' certificates hold for
         the steps only, so the step claims nothing beyond being a plan: bound 0, status
-        feasible, its horizon not proven minimal."""
+        feasible, every shorter horizon undecided."""
         steps = self.segments
         stats: dict = {}
         for s in steps:
@@ -196,6 +196,7 @@ class Plan:
             solve_time_s=float(sum(s.solve_time_s for s in steps)), cost=cost,
             binaries=max((s.binaries for s in steps), default=0),
             gap=1.0 if cost > 0 else 0.0, cpu_time_s=self.total_cpu_time_s,
+            horizons_undecided=list(range(1, self.makespan)),
             search_stats=stats or None, sequential_steps=len(steps))
         return replace(self, segments=[one])
 

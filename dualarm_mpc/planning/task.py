@@ -9,14 +9,14 @@ import time
 from collections.abc import Callable
 
 from dualarm_mpc.milp.horizon import solve_options
-from dualarm_mpc.milp.solver import Interrupt
+from dualarm_mpc.milp.solver import Interrupt, Status
 from dualarm_mpc.model.plan import Plan, Segment
 from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import Report, check
 from dualarm_mpc.planning.sequential import HorizonTried, KeptSteps, PlanningError, transport
 
-__all__ = ["ConflictError", "VerificationError", "plan", "whole_task"]
+__all__ = ["ConflictError", "VerificationError", "first_pass", "plan", "whole_task"]
 
 # (m_o, n_o) of the sequential transportation whose plan, joined into one step, is the whole
 # task's first (``plan --mo all``): Table II's first row, the quickest.
@@ -103,8 +103,13 @@ def plan(scenario: Scenario, *, check_first: bool = True,
         return first
     if on_first_plan:
         on_first_plan(first)
+    # No horizon past the first plan's can better it: the search's cap is that horizon, and a
+    # proof that none up to it has a plan contradicts the first plan.
+    capped = dataclasses.replace(scenario, solver=dataclasses.replace(
+        scenario.solver, max_horizon=first.makespan))
+    horizons = _Horizons(on_try)
     try:
-        whole = _passes(scenario, options, progress, on_try, None, t0)
+        whole = _passes(capped, options, progress, horizons, None, t0)
     except PlanningError as err:
         if isinstance(err, VerificationError) or err.proven:
             raise  # a defect, or a proof that contradicts the first plan: never hidden
@@ -115,24 +120,67 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     better = whole is not None and not whole.partial and (
         (whole.horizon_proven_minimal and all(s.proven_optimal for s in whole.segments))
         or (whole.makespan, whole.total_cost) <= (first.makespan, first.total_cost))
-    best = whole if better else first
+    best = whole if better else horizons.certify(first)
     spent = first.total_solve_time_s + (0.0 if whole is None else whole.total_solve_time_s)
     return dataclasses.replace(best, first_plan_s=first.first_plan_s,
                                unused_solve_time_s=max(0.0, spent - sum(
                                    s.solve_time_s for s in best.segments)))
 
 
-def _sequential_first(scenario: Scenario, options, progress, on_try, t0: float) -> Plan | None:
-    """The whole task's first plan: sequential transportation at ``FIRST_PASS``, joined into
-    one step and verified as the whole task's; None where ``scenario`` is not a whole task of
-    more than ``FIRST_PASS``'s m_o objects, or sequential transportation gives no complete plan
-    (the whole-task search then runs alone and says why)."""
+class _Horizons:
+    """What the whole task's search proved of the whole step's horizons, heard through
+    ``on_try`` (and passed on to ``on_try``): the first it tries is predictT, below which no
+    horizon has a plan (reachability, the route bound); those it proves infeasible after it."""
+
+    def __init__(self, on_try: Callable[[HorizonTried], None] | None) -> None:
+        self.on_try = on_try
+        self.first: int | None = None
+        self.empty: set[int] = set()
+
+    def __call__(self, tried: HorizonTried) -> None:
+        if tried.step == 1:
+            T = tried.result.horizon
+            self.first = T if self.first is None else min(self.first, T)
+            if tried.result.status is Status.INFEASIBLE:
+                self.empty.add(T)
+        if self.on_try:
+            self.on_try(tried)
+
+    def certify(self, first: Plan) -> Plan:
+        """The whole task's first plan (one joined step) with what the search proved of the
+        shorter horizons: from predictT, the horizons up to the first not proven empty have no
+        plan and the rest below the plan's are undecided; none undecided, its horizon is
+        proven minimal."""
+        (step,) = first.segments
+        if self.first is None:  # stopped before the first horizon was decided
+            return first
+        least = self.first
+        while least in self.empty:
+            least += 1
+        undecided = list(range(least, step.horizon))
+        return dataclasses.replace(first, segments=[dataclasses.replace(
+            step, horizons_undecided=undecided, horizon_proven_minimal=not undecided)])
+
+
+def first_pass(scenario: Scenario) -> Scenario | None:
+    """The sequential transportation whose plan is the whole task's first: ``scenario`` at
+    ``FIRST_PASS``'s (m_o, n_o); None where ``scenario`` is not a whole task
+    (:func:`whole_task`) of more than that m_o objects."""
     task, n = scenario.task, scenario.n_objects
     m_o, n_o = FIRST_PASS
     if not task.m_o == task.n_o == n > m_o:
         return None
-    steps = dataclasses.replace(scenario, task=dataclasses.replace(task, m_o=m_o,
-                                                                   n_o=min(n_o, n)))
+    return dataclasses.replace(scenario, task=dataclasses.replace(task, m_o=m_o,
+                                                                  n_o=min(n_o, n)))
+
+
+def _sequential_first(scenario: Scenario, options, progress, on_try, t0: float) -> Plan | None:
+    """The whole task's first plan: sequential transportation by :func:`first_pass`, joined
+    into one step and verified as the whole task's; None where there is no first pass, or it
+    gives no complete plan (the whole-task search then runs alone and says why)."""
+    steps = first_pass(scenario)
+    if steps is None:
+        return None
     try:
         found = transport(steps, options, progress, on_try)
     except PlanningError:
