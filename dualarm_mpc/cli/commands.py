@@ -135,12 +135,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     said = [time.perf_counter()] * 2  # the last line printed, the step's start
     headed = [0]  # the last step whose header is printed
     sequential = first_pass(scenario)  # the whole task's first plan's steps, if any
-    searching = [False]  # past the first plan
+    whole = [False]  # the whole task's search has begun (past its first plan's steps)
 
     def numbers(objects) -> str:
         return ",".join(task.objects[j].name.removeprefix("object") for j in objects)
 
     def header(step: int, objects) -> None:
+        # a step of every object, more than the first pass's steps take: the whole search's
+        whole[0] = whole[0] or len(objects) == scenario.n_objects > (
+            0 if sequential is None else sequential.task.n_o)
         if headed[0] < step:
             headed[0] = step
             print(f"step {step}: objects {numbers(objects)}", flush=True)
@@ -157,7 +160,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         count[0] += 1
         header(count[0], seg.objects)
         names = numbers(seg.delivered)
-        m_o = task.m_o if sequential is None or searching[0] else sequential.task.m_o
+        m_o = task.m_o if sequential is None or whole[0] else sequential.task.m_o
         fewer = len(seg.objects) < m_o  # the last objects: m_o shrinks to them
         notes = [f"m_o = {len(seg.objects)}: the objects left"] if fewer else []
         if seg.witness_cost is not None:
@@ -193,10 +196,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
                   f"{res.solve_time_s:>9.2f}{by}", flush=True)
 
     def first_plan(first) -> None:  # the anytime plan's first pass: its steps again, searched
-        searching[0] = True
         joined = first.segments[0].sequential_steps
-        how = (f"sequential transportation's {joined} steps, joined); the whole task in one "
-               "search now" if joined else
+        how = (f"sequential transportation's {joined} steps, joined); searching on for a "
+               "better plan" if joined else
                "each step's no-throw witness); Algorithm 1 on each step now")
         print(f"first verified plan: cost {first.total_cost:.3f}, {first.makespan} steps, after "
               f"{first.first_plan_s:.2f} s ({how}", flush=True)

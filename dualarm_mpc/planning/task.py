@@ -96,13 +96,11 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     if stop is not None:
         options = dataclasses.replace(options, interrupt=stop)
     t0 = time.perf_counter()
-    first = _sequential_first(scenario, options, progress, on_try, t0)
+    first = _sequential_first(scenario, options, progress, on_try, on_first_plan, t0)
     if first is None:
         return _passes(scenario, options, progress, on_try, on_first_plan, t0)
     if options.stopped():
         return first
-    if on_first_plan:
-        on_first_plan(first)
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
     capped = dataclasses.replace(scenario, solver=dataclasses.replace(
@@ -174,23 +172,36 @@ def first_pass(scenario: Scenario) -> Scenario | None:
                                                                   n_o=min(n_o, n)))
 
 
-def _sequential_first(scenario: Scenario, options, progress, on_try, t0: float) -> Plan | None:
-    """The whole task's first plan: sequential transportation by :func:`first_pass`, joined
-    into one step and verified as the whole task's; None where there is no first pass, or it
-    gives no complete plan (the whole-task search then runs alone and says why)."""
+def _sequential_first(scenario: Scenario, options, progress, on_try, on_first_plan,
+                      t0: float) -> Plan | None:
+    """The whole task's first plan: sequential transportation by :func:`first_pass`, anytime
+    itself (:func:`_passes`: under rule 2 its no-throw witnesses, then Algorithm 1), each of
+    its complete plans joined into one step and verified as the whole task's, the first told
+    to ``on_first_plan``; the last of them, or None where there is no first pass or it gives no
+    complete plan (the whole-task search then runs alone and says why)."""
     steps = first_pass(scenario)
     if steps is None:
         return None
+    told: list[Plan] = []
+
+    def joined(found: Plan) -> None:
+        one = found.as_one_step()
+        if verify(scenario, one).ok:  # else the joined steps break a rule of the whole task
+            told.append(dataclasses.replace(one, verified=True,
+                                            first_plan_s=told[0].first_plan_s if told else
+                                            time.perf_counter() - t0))
+            if on_first_plan and len(told) == 1:
+                on_first_plan(told[0])
+
     try:
-        found = transport(steps, options, progress, on_try)
+        found = _passes(steps, options, progress, on_try, joined, t0)
+    except VerificationError:
+        raise  # a defect, never hidden
     except PlanningError:
-        return None
-    if found.partial or not verify(steps, found).ok:
-        return None
-    one = found.as_one_step()
-    if not verify(scenario, one).ok:  # the joined steps break a rule of the whole task
-        return None
-    return dataclasses.replace(one, verified=True, first_plan_s=time.perf_counter() - t0)
+        return told[-1] if told else None
+    if not found.partial and (not told or found.total_cost < told[-1].total_cost):
+        joined(found)  # Algorithm 1's plan after its witnesses, or the only pass's
+    return told[-1] if told else None
 
 
 def _passes(scenario: Scenario, options, progress, on_try, on_first_plan, t0: float) -> Plan:
