@@ -14,7 +14,8 @@ import dualarm_mpc as dm
 from dualarm_mpc.milp.horizon import StepResult
 from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.verify import verify
-from dualarm_mpc.planning.sequential import HorizonTried
+from dualarm_mpc.planning import sequential
+from dualarm_mpc.planning.sequential import HorizonTried, solve_horizon
 from dualarm_mpc.planning.task import FIRST_PASS, _Horizons, first_pass
 
 
@@ -192,3 +193,26 @@ def test_the_whole_search_reaches_past_the_horizon_cap_up_to_the_first_plan() ->
     (step,) = plan.segments
     assert step.sequential_steps is None and step.horizon_proven_minimal
     assert 20 < step.horizon < first.makespan and plan.verified
+
+
+def test_a_stop_within_a_horizon_keeps_the_plan_it_found(monkeypatch) -> None:
+    """A stop that ends the whole task's search within a horizon after it found a plan (here
+    at the last moment of the search) keeps that plan: shorter than the joined first plan,
+    verified, its optimum claimed only as far as the search proved it."""
+    stop = dm.Interrupt()
+
+    def stopped_once_planned(*args, **kw) -> StepResult:
+        res = solve_horizon(*args, **kw)
+        if res.status.has_solution and args[0].spec.m_o == 4:  # the whole step's
+            stop.set()
+        return res
+
+    monkeypatch.setattr(sequential, "solve_horizon", stopped_once_planned)
+    firsts: list[dm.Plan] = []
+    plan = dm.plan(whole_of_four(), stop=stop, on_first_plan=firsts.append)
+    (first,) = firsts
+    (step,) = plan.segments
+    assert stop.is_set() and plan.verified and not plan.partial
+    assert step.sequential_steps is None and plan.makespan < first.makespan
+    assert step.bound <= step.cost and (step.status == "optimal") == (
+        step.gap <= whole_of_four().solver.mip_rel_gap)

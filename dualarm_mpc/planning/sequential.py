@@ -352,7 +352,8 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
     infeasible or timed-out horizon counts as "not yet"; the result's ``minimal`` says whether
     every one was proven infeasible: by the search, or by the second prover
     (:func:`second_prover`), which works on the horizons the search left undecided beside its
-    next ones).
+    next ones). A stop (``options.interrupt``) ends it: with the plan a horizon's search had
+    found by then (its optimum unproven: the status says so), else with :class:`Interrupted`.
 
     With the skeleton search and a specification whose feasibility is monotone in T
     (:meth:`~dualarm_mpc.model.spec.Specification.monotone_in_horizon`), once the step went
@@ -377,7 +378,8 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
                 if horizon_ruled_out(problem, cap, CAP_CHECK_TIME_S, options):
                     raise PlanningError(diagnose(problem, None, options, True), proven=True)
             res = solve_horizon(problem, T, options, below=below)
-            _stop_if_asked(options)  # a stopped solve decides nothing, even with an incumbent
+            if not res.status.has_solution:  # a stopped solve without a plan decides nothing;
+                _stop_if_asked(options)  # with one, its plan holds, its optimum unproven
             if on_try:
                 on_try(res)
             last = res
