@@ -279,7 +279,7 @@ def test_relays_are_probed_when_the_nodes_without_them_are_left_undecided() -> N
     assert held_by_both(found.witness)
 
 
-@pytest.mark.parametrize("seed", [0, 3])
+@pytest.mark.parametrize("seed", [1, 5])  # scenes whose horizons below carry plans up
 def test_plans_carried_up_a_horizon_change_nothing(seed: int) -> None:
     """A step's horizons hand their relaxations with a plan to the next one, where each, idled
     one more step, stands for a probe: the optimum found is that of a search from scratch."""

@@ -325,6 +325,10 @@ class FeasibilityPass:
         infeasible, None when one ran out of time (undecided). The ``ahead`` relaxations are
         probed beside the node's, on the workers its own leave idle."""
         keys = self.store.keys(node)
+        if any(isinstance(k, HandKey) and self.store.share_ruled_out(k.hand, k.share)
+               for k in keys):
+            return False  # without a solve of the node's other relaxations (their probes
+            # would outnumber the node's: a whole task's shares are ruled out by their routes)
         self.store.fetch(((k, False) for k in keys + list(ahead)), slice_s=slice_s)
         statuses = [self.store.status(k) for k in keys]
         if Status.INFEASIBLE in statuses:
