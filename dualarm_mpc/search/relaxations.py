@@ -138,8 +138,11 @@ class RelaxationStore:
 
     def larger(self, key: Key) -> bool:
         """Whether ``key`` is the larger share of a balanced node (one object when m_o ≤ 2, a
-        pair when m_o = 3), solved exactly when first asked (see :meth:`fetch`)."""
-        return isinstance(key, HandKey) and len(key.share) == (self.programs.spec.m_o + 1) // 2
+        pair when m_o = 3), solved exactly when first asked (see :meth:`fetch`). Not past
+        m_o = 3: there a share's exact solve costs many times its probe (three objects of a
+        whole task of six, 11 s against 2), and most horizons searched have no plan."""
+        m_o = self.programs.spec.m_o
+        return isinstance(key, HandKey) and m_o <= 3 and len(key.share) == (m_o + 1) // 2
 
     def _compute(self, key: Key, exact: bool, cutoff: float, slice_s: float) -> StepResult:
         """The relaxation, without a solve where what is known decides it (a plan of the
