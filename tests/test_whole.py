@@ -10,7 +10,7 @@ import dataclasses
 import pytest
 
 import dualarm_mpc as dm
-from dualarm_mpc.milp.horizon import solve_options, solve_step
+from dualarm_mpc.milp.horizon import StepResult, solve_options, solve_step
 from dualarm_mpc.milp.solver import Status
 from dualarm_mpc.model.mld import State
 from dualarm_mpc.model.spec import StepProblem, rule_formulas, specification
@@ -44,13 +44,24 @@ def test_the_whole_task_is_the_monolithic_optimum(objects: int, seed: int) -> No
     options = solve_options(scenario, time_limit_s=900.0)
     # a plan of T − 1 idles into one of every longer horizon: no shorter horizon has a plan
     assert problem.spec.monotone_in_horizon()
-    shorter = solve_step(problem, step.horizon - 1, options)
+    shorter = undecided_skips(solve_step(problem, step.horizon - 1, options))
     assert shorter.status is Status.INFEASIBLE, shorter.status
     # at T, no plan cheaper than the search's (the monolithic MILP's optimum, found or cut off)
     cutoff = step.cost * (1 - 2 * scenario.solver.mip_rel_gap)
-    at = solve_step(problem, step.horizon, dataclasses.replace(options, cutoff=cutoff))
+    at = undecided_skips(solve_step(problem, step.horizon,
+                                    dataclasses.replace(options, cutoff=cutoff)))
     assert at.status is Status.INFEASIBLE or (
         at.status is Status.OPTIMAL and at.cost >= cutoff), (at.status, at.cost, step.cost)
+
+
+def undecided_skips(oracle: StepResult) -> StepResult:
+    """The monolithic MILP's verdict, or a skip where it gave none in its time (its LP bound
+    is zero: on some four-object seeds it decides neither way in 900 s): no verdict, not a
+    pass."""
+    if oracle.status is Status.TIME_LIMIT:
+        pytest.skip(f"the monolithic MILP left T = {oracle.horizon} undecided in "
+                    f"{oracle.solve_time_s:.0f} s: no verdict")
+    return oracle
 
 
 def test_the_plan_carries_its_certificate() -> None:

@@ -403,12 +403,20 @@ class BestFirst:
                     stats.pruned.update(heap.in_order())
                 break
             need = self.store.missing(node)
+            if any(isinstance(k, HandKey) and self.store.share_ruled_out(k.hand, k.share)
+                   for k in need):  # its route rules a share out: no solve of the others
+                stats.pruned.add(node)
+                continue
             if need:
-                # The next nodes' needs too: they are likely to come next. A fixed batch (not
-                # one per worker) keeps the search, and the plan it picks among equal optima,
-                # the same whatever the number of workers.
+                # The node's larger shares first: where the horizon is short for them (most
+                # nodes of a whole task), one is infeasible and the smaller ones' exact solves,
+                # the slow ones at long horizons, are never needed. Then the next nodes' needs:
+                # they are likely to come next. A fixed batch (not one per worker) keeps the
+                # search, and the plan it picks among equal optima, the same whatever the
+                # number of workers.
+                need = _largest(need)
                 for other in heap.smallest(FETCH):
-                    need += self.store.missing(other)
+                    need += _largest(self.store.missing(other))
                 self.store.fetch(((k, True) for k in need[:FETCH]), cutoff=limit)
                 heap.push(node, self.store.bound(node))
                 continue
@@ -520,6 +528,12 @@ class _Heap:
 
     def in_order(self) -> list[Node]:
         return [node for _, _, node in sorted(self._items)]
+
+
+def _largest(keys: list[Key]) -> list[Key]:
+    """Of a node's relaxations, those of its largest shares (every one handed over kept)."""
+    size = max((len(k.share) for k in keys if isinstance(k, HandKey)), default=0)
+    return [k for k in keys if not isinstance(k, HandKey) or len(k.share) == size]
 
 
 def _cost(best: StepResult | None) -> float:
