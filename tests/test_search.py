@@ -44,8 +44,9 @@ from dualarm_mpc.model.spec import (
     untouchable,
     with_no_throw,
 )
+from dualarm_mpc.planning.sequential import predict_horizon
 from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
-from dualarm_mpc.search.skeleton import StepSearch, search_step
+from dualarm_mpc.search.skeleton import FeasibilityPass, StepSearch, search_step
 from dualarm_mpc.search.subprograms import BOTH, StepPrograms
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
@@ -491,3 +492,28 @@ def test_an_incumbent_cuts_the_search_short_and_leaves_its_optimum(seed: int) ->
     again = search_step(problem, T, incumbent=plain)
     assert again.status is Status.OPTIMAL
     assert again.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)
+
+
+
+def test_a_share_its_route_rules_out_rules_its_node_out_unsolved() -> None:
+    """In a whole task most nodes give one hand more objects than its route allows: the
+    feasibility pass rules such a node out with no program solved, the other hand's share
+    included (its probe would be wasted)."""
+    s = load_scenario("table1_vd", {"seed": 1, "random_objects": {"count": 4}, "rule": 1,
+                                    "delivery": "rest"})
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
+    problem = StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
+                                                             rules=rule_formulas(s)))
+    programs = StepPrograms(problem, predict_horizon(problem), solve_options(s))
+    search = StepSearch.of(programs)
+    store = search.store
+
+    def ruled_out(node) -> list[bool]:
+        return [store.share_ruled_out(i, node.share(i)) for i in range(2)]
+
+    crowded = [n for n in search.skeleton.single_hand() if any(ruled_out(n))
+               and not all(ruled_out(n))]
+    assert len(crowded) >= 8  # of the 16 nodes
+    feasibility = FeasibilityPass(programs, store, search.skeleton)
+    assert all(feasibility.relaxations_feasible(n) is False for n in crowded)
+    assert store.solved == 0 and programs.stats.programs == 0
