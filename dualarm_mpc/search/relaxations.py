@@ -222,6 +222,12 @@ class RelaxationStore:
         return (np.isinf(self.hand_bound(i, share))
                 or self.programs.route(i, share) > self.programs.horizon)
 
+    def ruled_out(self, node: Node) -> bool:
+        """Whether a share of ``node`` is ruled out without a solve (:meth:`share_ruled_out`):
+        the node then has no plan, and its other relaxations need no solve (in a whole task
+        most nodes give one hand more objects than its route allows)."""
+        return any(self.share_ruled_out(i, node.share(i)) for i in range(N_HANDS))
+
     def hand_bound(self, i: int, share: tuple[int, ...]) -> float:
         """A lower bound on c_i(share): its own if solved, else the best of its solved subsets."""
         best = 0.0

@@ -324,11 +324,9 @@ class FeasibilityPass:
         """True when every relaxation of the node has a solution, False when one is proven
         infeasible, None when one ran out of time (undecided). The ``ahead`` relaxations are
         probed beside the node's, on the workers its own leave idle."""
+        if self.store.ruled_out(node):
+            return False
         keys = self.store.keys(node)
-        if any(isinstance(k, HandKey) and self.store.share_ruled_out(k.hand, k.share)
-               for k in keys):
-            return False  # without a solve of the node's other relaxations (their probes
-            # would outnumber the node's: a whole task's shares are ruled out by their routes)
         self.store.fetch(((k, False) for k in keys + list(ahead)), slice_s=slice_s)
         statuses = [self.store.status(k) for k in keys]
         if Status.INFEASIBLE in statuses:
@@ -402,11 +400,10 @@ class BestFirst:
                 if lb >= limit * (1 - gap) - 1e-9:  # every open node is bounded above it
                     stats.pruned.update(heap.in_order())
                 break
-            need = self.store.missing(node)
-            if any(isinstance(k, HandKey) and self.store.share_ruled_out(k.hand, k.share)
-                   for k in need):  # its route rules a share out: no solve of the others
+            if self.store.ruled_out(node):
                 stats.pruned.add(node)
                 continue
+            need = self.store.missing(node)
             if need:
                 # The node's larger shares first: where the horizon is short for them (most
                 # nodes of a whole task), one is infeasible and the smaller ones' exact solves,
