@@ -267,6 +267,25 @@ def test_a_signal_during_a_plan_writes_the_steps_so_far(tmp_path, sig, code) -> 
 
 
 @pytest.mark.slow
+def test_a_stop_sent_twice_to_the_process_group_writes_the_steps_so_far(tmp_path) -> None:
+    """Ctrl-C in a shell (and ``timeout``) signals the whole process group, and a key may be
+    pressed twice: the repeat is the same stop. Before, it cut the wait for the solver short
+    and the steps so far were not written."""
+    proc = cli("plan", "table1_vd", "--seed", "3", "--out", "plan.json", cwd=tmp_path,
+               start_new_session=True)
+    for line in proc.stdout:  # the first step's plan (of five)
+        if {"optimal", "feasible"} & set(line.split()):
+            break
+    os.killpg(proc.pid, signal.SIGINT)
+    time.sleep(0.05)
+    stdout, stderr = stop(proc, signal.SIGINT)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "terminate called" not in stderr
+    assert "interrupted by SIGINT after" in stderr and "partial" in stderr
+    assert json.loads((tmp_path / "plan.json").read_text())["partial"] is True
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize(("sig", "code"), SIGNALS, ids=lambda v: getattr(v, "name", str(v)))
 def test_a_signal_during_a_simulation_writes_the_summary_and_replay(robot, sig, code) -> None:
     scenario, before = robot

@@ -20,6 +20,9 @@ OK, BAD_INPUT, CONFLICT, FAILED = 0, 2, 3, 4  # exit codes; a stop signal: 128 +
 
 # Each stops a run as Ctrl-C does: the work so far is written, marked partial.
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+# A stop signal this soon after the first is the same stop sent again (to the process group, as
+# ``timeout`` and a shell's Ctrl-C do, or a key pressed twice): it must not cost what is written.
+SAME_STOP_S = 1.0
 
 
 received: list[int] = []  # the stop signals received by this run, first first
@@ -68,7 +71,10 @@ def interruptible(work, stop=None, tick=lambda: None):
         stop.set()
         print(f"interrupted by {signal_name()}: stopping the solver", file=sys.stderr,
               flush=True)
-        done.wait()
+        try:
+            done.wait()
+        except KeyboardInterrupt:  # a later signal: do not wait for the solver to stop
+            raise Abandoned from None
     if "error" in out:
         raise out["error"]
     return out["value"]
@@ -102,9 +108,16 @@ def signal_name() -> str:
 @contextlib.contextmanager
 def stop_signals():
     """SIGTERM and SIGHUP stop the run as SIGINT does: a ``KeyboardInterrupt`` on the main
-    thread, the signal noted for the exit code."""
+    thread, the signal noted for the exit code. A repeat within ``SAME_STOP_S`` of the first
+    is noted only."""
+    first: list[float] = []
+
     def stop(signum: int, frame) -> None:
+        now = time.monotonic()
         received.append(signum)
+        if first and now - first[0] < SAME_STOP_S:
+            return
+        first[:] = [now]
         raise KeyboardInterrupt
 
     received.clear()
