@@ -47,7 +47,7 @@ from dualarm_mpc.model.spec import (
 from dualarm_mpc.planning.sequential import predict_horizon
 from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
 from dualarm_mpc.search.skeleton import FeasibilityPass, StepSearch, search_step
-from dualarm_mpc.search.subprograms import BOTH, StepPrograms
+from dualarm_mpc.search.subprograms import BOTH, Node, StepPrograms
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
 
@@ -517,3 +517,36 @@ def test_a_share_its_route_rules_out_rules_its_node_out_unsolved() -> None:
     feasibility = FeasibilityPass(programs, store, search.skeleton)
     assert all(feasibility.relaxations_feasible(n) is False for n in crowded)
     assert store.solved == 0 and programs.stats.programs == 0
+
+
+def test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved() -> None:
+    """A node's joint program split by its hands' orders is bounded part by part by c_i(o),
+    each hand alone along its order (the parts of its share's relaxation): a part whose bound
+    reaches the best plan so far is closed without its joint solve, and the node's optimum is
+    still the best of every part's, each solved jointly in full. Four objects, seed 7, at the
+    whole task's minimal horizon: a pair for each hand, four parts."""
+    s = load_scenario("table1_vd", {"seed": 7, "random_objects": {"count": 4}, "rule": 1,
+                                    "delivery": "rest"})
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
+    problem = StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
+                                                             rules=rule_formulas(s)))
+    programs = StepPrograms(problem, 19, solve_options(s))
+    node = Node((0, 1, 2, 3), (1, 0, 0, 1))
+    floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
+    parts = list(itertools.product(*(programs.orders(i, node.share(i)) for i in range(2))))
+    assert len(parts) == 4
+    solve, joints = programs.solve, []
+
+    def counted(*args, **kwargs):
+        joints.extend([] if kwargs.get("relaxed") else [kwargs["orders"]])
+        return solve(*args, **kwargs)
+
+    programs.solve = counted
+    found = programs.joint(node, floor)
+    assert found.status is Status.OPTIMAL and 0 < len(joints) < len(parts)
+    programs.solve = solve
+    mask = programs.mask([(h, j) for j, h in zip(node.targets, node.hands, strict=True)])
+    every = [programs.solve(programs.node_spec(node), mask, orders=part) for part in parts]
+    assert all(r.status in (Status.OPTIMAL, Status.INFEASIBLE) for r in every)
+    assert found.cost == pytest.approx(min(r.cost for r in every), rel=1e-6, abs=1e-9)
+    assert replayed_trace_satisfies(s, problem.spec, found)

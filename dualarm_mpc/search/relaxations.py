@@ -71,11 +71,10 @@ def solve_relaxation(programs: StepPrograms, request: Request) -> StepResult:
     the specification restricted to its objects (``spec.restricted``); a hand's share split by
     its orders where no-throw (18) allows
     (:meth:`~dualarm_mpc.search.subprograms.StepPrograms.by_order`)."""
-    # An object held now may stay held by either hand: untouching it is not free (it would
-    # slide off), so every relaxation leaves it as the node programs may.
-    held = [(i, j) for j in programs.held for i in range(N_HANDS)]
     key = request.key
     if isinstance(key, AloneKey):
+        # an object held now stays free to either hand, as in the node programs
+        held = [(i, j) for j in programs.held for i in range(N_HANDS)]
         j = key.object
         return programs.solve(restricted(programs.spec, (j,), (j,)),
                               programs.mask([(i, j) for i in range(N_HANDS)] + held),
@@ -84,10 +83,8 @@ def solve_relaxation(programs: StepPrograms, request: Request) -> StepResult:
     i, share = key.hand, key.share
     floor = np.zeros(N_HANDS)
     floor[i] = request.floor
-    return programs.by_order(restricted(programs.spec, share, share),
-                             programs.mask([(i, j) for j in share] + held), [(i, share)],
-                             hands=(i,), floor=floor, start=request.start, exact=request.exact,
-                             cutoff=request.cutoff, relaxed=True, slice_s=request.slice_s)
+    return programs.hand(i, share, floor=floor, start=request.start, exact=request.exact,
+                         cutoff=request.cutoff, slice_s=request.slice_s)
 
 
 _UNKNOWN = StepResult.no_plan(Status.ERROR, 0)

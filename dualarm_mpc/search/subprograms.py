@@ -41,7 +41,7 @@ from dualarm_mpc.model.mld import (
 from dualarm_mpc.model.plan import Trajectory
 from dualarm_mpc.model.route import Order, orders, route_steps
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import Specification, StepProblem
+from dualarm_mpc.model.spec import Specification, StepProblem, restricted
 
 BOTH = 2  # h_j: either hand may hold object j (a hand-over)
 # A share is split into one program per order (m! of them) up to this many objects: 120 at five;
@@ -126,6 +126,11 @@ class StepPrograms:
         self.held = [j for n, j in enumerate(spec.objects) if local_grasp[:, n].any()]
         self.no_throw = frozenset(self.local[j] for j in spec.released_only_in_goal())
         self.stats = SearchStats()
+        # c_i(o): the least cost of hand i alone along order o (a part of its relaxation
+        # c_i(S)), as proven so far, and the orders whose bound is their optimum
+        self._order_bound: dict[tuple[int, tuple[int, ...]], float] = {}
+        self._order_exact: set[tuple[int, tuple[int, ...]]] = set()
+        self._order_lock = threading.Lock()
 
     @property
     def scenario(self) -> Scenario:
@@ -188,18 +193,35 @@ class StepPrograms:
         solved against the best plan of those before (a cutoff), and a probe stops at the
         first part with a plan. ``start`` starts the part its plan follows. ``spread``: the
         parts of an exact solve run on every worker at once, each against ``cutoff`` alone
-        (for a program solved while the other worker would idle)."""
+        (for a program solved while the other worker would idle).
+
+        The parts of a one-hand relaxation prove c_i(o) of their orders. A part of a joint
+        program (both hands costed) is bounded by them (:meth:`_part_floor`): the parts are
+        solved least bound first, each with its hands' c_i(o) as floors, and a part whose
+        bound reaches the cutoff is closed unsolved."""
         split = [o for o in (self.orders(i, share) for i, share in shares) if o is not None]
         if not split:
             return self.solve(spec, allowed, hands, start=start, floor=floor, exact=exact,
                               cutoff=cutoff, relaxed=relaxed, slice_s=slice_s)
         parts = list(itertools.product(*split))  # the shortest routes first
+        one_hand = relaxed and len(hands) == 1
+        joint = exact and not relaxed and len(hands) == N_HANDS
+        if joint:
+            parts.sort(key=lambda part: sum(self._order_bound.get(_key(o), 0.0) for o in part))
 
         def solve(part, exact=exact, cutoff=cutoff):
-            return self.solve(spec, allowed, hands, floor=floor, orders=part, exact=exact,
-                              start=start if all(_follows(start, o) for o in part) else None,
-                              cutoff=cutoff, relaxed=relaxed, slice_s=slice_s,
-                              apart=frozenset() if start is None else start.apart)
+            part_floor = floor
+            if joint:
+                part_floor = self._part_floor(part, shares, floor, cutoff)
+                if part_floor is None:  # no plan of the part is cheaper than the cutoff
+                    return replace(INFEASIBLE, bound=cutoff)
+            res = self.solve(spec, allowed, hands, floor=part_floor, orders=part, exact=exact,
+                             start=start if all(_follows(start, o) for o in part) else None,
+                             cutoff=cutoff, relaxed=relaxed, slice_s=slice_s,
+                             apart=frozenset() if start is None else start.apart)
+            if one_hand:
+                self._prove_order(part[0], res)
+            return res
 
         if spread and exact:
             return best_part(self.map(solve, parts))
@@ -211,6 +233,52 @@ class StepPrograms:
                 return res
             results.append(res)
         return best_part(results)
+
+    def hand(self, i: int, share: tuple[int, ...], **solve) -> StepResult:
+        """c_i(S) (``relaxations.py``): hand i delivers ``share`` alone, only its force costed,
+        the rule instances that mention other objects left out, split by its orders."""
+        return self.by_order(*self._hand_program(i, share), [(i, share)], hands=(i,),
+                             relaxed=True, **solve)
+
+    def _hand_program(self, i: int, share: tuple[int, ...]) -> tuple[Specification, np.ndarray]:
+        # An object held now may stay held by either hand: untouching it is not free (it would
+        # slide off), so every relaxation leaves it as the node programs may.
+        held = [(h, j) for j in self.held for h in range(N_HANDS)]
+        return restricted(self.spec, share, share), self.mask([(i, j) for j in share] + held)
+
+    def _prove_order(self, order: Order, res: StepResult) -> None:
+        """Keep what ``res``, a solve of hand ``order.hand`` alone along ``order``, proves of
+        c_i(o)."""
+        key = _key(order)
+        with self._order_lock:
+            self._order_bound[key] = max(self._order_bound.get(key, 0.0), lower_bound(res))
+            if res.status is Status.OPTIMAL or (res.status is Status.INFEASIBLE
+                                                and np.isinf(res.bound)):
+                self._order_exact.add(key)
+
+    def _part_floor(self, part: tuple[Order, ...], shares, floor, cutoff: float
+                    ) -> np.ndarray | None:
+        """Each hand's floor in ``part`` of a joint program: its ``floor`` (its share's bound)
+        or c_i(o) of its order, the larger. A joint plan of the part, restricted to hand i, is
+        a plan of hand i alone along its order, so Σ_i c_i(o_i) bounds the part. Where the
+        floors leave the part below ``cutoff`` and a hand's c_i(o) is known only as a bound,
+        it is solved against what the part may still cost (a one-hand program, a fraction of
+        the joint one's time). None: the part is no cheaper than ``cutoff``."""
+        f = np.zeros(N_HANDS) if floor is None else np.array(floor, float)
+        for order in part:
+            f[order.hand] = max(f[order.hand], self._order_bound.get(_key(order), 0.0))
+        share = dict(shares)
+        for order in part:
+            i = order.hand
+            need = cutoff - (f.sum() - f[i])  # hand i's cost at which the part reaches it
+            if f.sum() >= cutoff:
+                return None
+            if np.isfinite(need) and _key(order) not in self._order_exact:
+                res = self.solve(*self._hand_program(i, share[i]), hands=(i,), orders=(order,),
+                                 cutoff=need, relaxed=True)
+                self._prove_order(order, res)
+                f[i] = max(f[i], lower_bound(res))
+        return None if f.sum() >= cutoff else f
 
     def orders(self, i: int, share: tuple[int, ...]) -> list[Order] | None:
         """The orders in which hand i can deliver ``share`` within the horizon
@@ -328,6 +396,10 @@ def _start(plan: StepResult | None):
     traj = plan.trajectory
     return lambda x: (np.concatenate([x.force.ravel(), x.eta.ravel()]),
                       np.concatenate([traj.force.ravel(), traj.grasp.ravel()]).astype(float))
+
+
+def _key(order: Order) -> tuple[int, tuple[int, ...]]:
+    return order.hand, order.objects
 
 
 def _follows(plan: StepResult | None, order: Order) -> bool:
