@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -47,7 +48,7 @@ from dualarm_mpc.model.spec import (
 from dualarm_mpc.planning.sequential import predict_horizon
 from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
 from dualarm_mpc.search.skeleton import FeasibilityPass, StepSearch, search_step
-from dualarm_mpc.search.subprograms import BOTH, Node, StepPrograms
+from dualarm_mpc.search.subprograms import BOTH, WAVE, Node, StepPrograms
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
 
@@ -519,18 +520,23 @@ def test_a_share_its_route_rules_out_rules_its_node_out_unsolved() -> None:
     assert store.solved == 0 and programs.stats.programs == 0
 
 
+def four_objects_seed_5() -> StepProblem:
+    """The whole task of four objects, seed 5, rule 1 (minimal horizon T = 20)."""
+    s = load_scenario("table1_vd", {"seed": 5, "random_objects": {"count": 4}, "rule": 1,
+                                    "delivery": "rest"})
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
+    return StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
+                                                          rules=rule_formulas(s)))
+
+
 def test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved() -> None:
     """A node's joint program split by its hands' orders is bounded part by part by c_i(o),
     each hand alone along its order (the parts of its share's relaxation): a part whose bound
     reaches the best plan so far is closed without its joint solve, and the node's optimum is
     still the best of every part's, each solved jointly in full. Four objects, seed 5, at the
     whole task's minimal horizon: a pair for each hand, four parts."""
-    s = load_scenario("table1_vd", {"seed": 5, "random_objects": {"count": 4}, "rule": 1,
-                                    "delivery": "rest"})
-    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
-    problem = StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
-                                                             rules=rule_formulas(s)))
-    programs = StepPrograms(problem, 20, solve_options(s))
+    problem = four_objects_seed_5()
+    programs = StepPrograms(problem, 20, solve_options(problem.scenario))
     node = Node((0, 1, 2, 3), (0, 1, 1, 0))
     floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
     parts = list(itertools.product(*(programs.orders(i, node.share(i)) for i in range(2))))
@@ -549,7 +555,31 @@ def test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved()
     every = [programs.solve(programs.node_spec(node), mask, orders=part) for part in parts]
     assert all(r.status in (Status.OPTIMAL, Status.INFEASIBLE) for r in every)
     assert found.cost == pytest.approx(min(r.cost for r in every), rel=1e-6, abs=1e-9)
-    assert replayed_trace_satisfies(s, problem.spec, found)
+    assert replayed_trace_satisfies(problem.scenario, problem.spec, found)
+
+
+def test_a_spread_programs_parts_run_in_waves_each_cut_off_by_those_before() -> None:
+    """A node evaluated alone spreads its joint program's parts over the workers, ``WAVE`` at a
+    time: the first wave against the incumbent (none here), each later part against the best
+    plan of the waves before, and the optimum is the one solved part after part."""
+    problem = four_objects_seed_5()
+    node = Node((0, 1, 2, 3), (0, 0, 1, 1))
+    found = []
+    for pool in (None, ThreadPoolExecutor(2)):
+        programs = StepPrograms(problem, 20, solve_options(problem.scenario), pool)
+        floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
+        solve, cutoffs = programs.solve, []
+
+        def in_waves(*args, solve=solve, cutoffs=cutoffs, **kwargs):
+            cutoffs.extend([] if kwargs.get("relaxed") else [kwargs["cutoff"]])
+            return solve(*args, **kwargs)
+
+        programs.solve = in_waves
+        found.append(programs.joint(node, floor, spread=pool is not None))
+    assert found[1].status is Status.OPTIMAL
+    assert found[1].cost == pytest.approx(found[0].cost, rel=1e-6, abs=1e-9)
+    assert len(cutoffs) > WAVE and np.isinf(cutoffs[:WAVE]).all()
+    assert np.isfinite(cutoffs[WAVE:]).all() and min(cutoffs) >= found[1].cost - 1e-9
 
 
 def test_an_orders_bound_from_a_solve_against_a_cutoff_goes_no_further_than_the_cutoff() -> None:

@@ -424,8 +424,11 @@ class BestFirst:
                 best = improved
                 heap.push(node, lb)
                 continue
-            batch = [(lb, node)] + self._beside(heap, limit)
-            lone = len(batch) == 1  # then it spreads its order parts over the workers instead
+            # A node split into order parts spreads them over the workers; others are
+            # evaluated beside the next ready node, if any, or spread too.
+            split = self.programs.parts(node) > 1
+            batch = [(lb, node)] + ([] if split else self._beside(heap, limit))
+            lone = len(batch) == 1
             results = self.programs.map(lambda n, cut=limit, spread=lone: self.evaluate(
                 n, cut, spread), [n for _, n in batch])
             for (lb_node, _), res in zip(batch, results, strict=True):

@@ -15,6 +15,7 @@ with the encoder).
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 import time
 from collections.abc import Iterable
@@ -47,6 +48,9 @@ BOTH = 2  # h_j: either hand may hold object j (a hand-over)
 # A share is split into one program per order (m! of them) up to this many objects: 120 at five;
 # a larger share is solved whole (ten would be 3.6 million programs, and as many routes)
 SPLIT_MAX_OBJECTS = 5
+# The parts of a spread program solved at once: fixed, not one per worker, so that which parts
+# a better plan cuts off, and the plan picked among equal optima, do not depend on the workers.
+WAVE = 2
 
 
 @dataclass(frozen=True)
@@ -131,6 +135,7 @@ class StepPrograms:
         self._order_bound: dict[tuple[int, tuple[int, ...]], float] = {}
         self._order_exact: set[tuple[int, tuple[int, ...]]] = set()
         self._order_lock = threading.Lock()
+        self._orders: dict[tuple[int, tuple[int, ...]], list[Order] | None] = {}
 
     @property
     def scenario(self) -> Scenario:
@@ -199,7 +204,8 @@ class StepPrograms:
         solved against the best plan of those before (a cutoff), and a probe stops at the
         first part with a plan. ``start`` starts the part its plan follows. ``spread``: the
         parts of an exact solve run on every worker at once, each against ``cutoff`` alone
-        (for a program solved while the other worker would idle).
+        (for a program solved while the other worker would idle), ``WAVE`` at a time, each
+        wave against the best plan of those before.
 
         The parts of a one-hand relaxation prove c_i(o) of their orders. A part of a joint
         program (both hands costed) is bounded by them (:meth:`_part_floor`): the parts are
@@ -229,9 +235,13 @@ class StepPrograms:
                 self._prove_order(part[0], res, cutoff, exact)
             return res
 
-        if spread and exact:
-            return best_part(self.map(solve, parts))
         results = []
+        if spread and exact:
+            for n in range(0, len(parts), WAVE):
+                best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
+                results += self.map(lambda part, best=best: solve(part, cutoff=best),
+                                    parts[n:n + WAVE])
+            return best_part(results)
         for part in parts:
             best = min([cutoff] + [r.cost for r in results if r.status.has_solution])
             res = solve(part, cutoff=best if exact else np.inf)
@@ -290,6 +300,11 @@ class StepPrograms:
                 f[i] = max(f[i], self._prove_order(order, res, need, exact=True))
         return None if f.sum() >= cutoff else f
 
+    def parts(self, node: Node) -> int:
+        """How many order parts the node's joint program is split into (:meth:`by_order`)."""
+        return math.prod(len(o) for i in range(N_HANDS)
+                         if (o := self.orders(i, node.share(i))) is not None)
+
     def orders(self, i: int, share: tuple[int, ...]) -> list[Order] | None:
         """The orders in which hand i can deliver ``share`` within the horizon
         (``route.orders``), where no-throw (18) holds for all of its objects, at rest and not
@@ -297,12 +312,13 @@ class StepPrograms:
         is much tighter than the whole (no object is grabbed, or in its goal, before its
         order's route allows; for one object, that alone). None where the split does not
         apply, or the share has more than ``SPLIT_MAX_OBJECTS``."""
-        local = tuple(self.local[j] for j in share)
-        if not share or len(share) > SPLIT_MAX_OBJECTS or not set(local) <= self.no_throw \
-                or not self.route(i, share):
-            return None
-        return orders(self.model, self.program.local_state, i, local, self.no_throw,
-                      self.horizon)
+        if (i, share) not in self._orders:
+            local = tuple(self.local[j] for j in share)
+            split = share and len(share) <= SPLIT_MAX_OBJECTS and set(local) <= self.no_throw \
+                and self.route(i, share)
+            self._orders[i, share] = orders(self.model, self.program.local_state, i, local,
+                                            self.no_throw, self.horizon) if split else None
+        return self._orders[i, share]
 
     def route(self, i: int, share: tuple[int, ...]) -> int:
         """The route bound (``route.py``), counted up to the horizon: more steps than the
