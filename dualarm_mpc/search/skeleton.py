@@ -61,7 +61,7 @@ from dualarm_mpc.search.relaxations import (
     RelaxationStore,
     solve_relaxation,
 )
-from dualarm_mpc.search.subprograms import BOTH, Node, StepPrograms, lower_bound
+from dualarm_mpc.search.subprograms import BOTH, WAVE, Node, StepPrograms, lower_bound
 
 BATCH = 2  # nodes evaluated at once in the best-first loop
 # The feasibility pass gives each program at first this share of the horizon's time limit, then
@@ -424,9 +424,11 @@ class BestFirst:
                 best = improved
                 heap.push(node, lb)
                 continue
-            # A node split into order parts spreads them over the workers; others are
-            # evaluated beside the next ready node, if any, or spread too.
-            split = self.programs.parts(node) > 1
+            # A node split into more order parts than a wave spreads them over the workers, so
+            # that the later waves are cut off by the first; others are evaluated beside the
+            # next ready node, if any (each part after part), or spread too. A node of two
+            # parts gains more beside another: its second part is cut off by its first.
+            split = self.programs.parts(node) > WAVE
             batch = [(lb, node)] + ([] if split else self._beside(heap, limit))
             lone = len(batch) == 1
             results = self.programs.map(lambda n, cut=limit, spread=lone: self.evaluate(

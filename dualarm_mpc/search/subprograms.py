@@ -284,7 +284,8 @@ class StepPrograms:
         a plan of hand i alone along its order, so Σ_i c_i(o_i) bounds the part. Where the
         floors leave the part below ``cutoff`` and a hand's c_i(o) is known only as a bound,
         it is solved against what the part may still cost (a one-hand program, a fraction of
-        the joint one's time). None: the part is no cheaper than ``cutoff``."""
+        the joint one's time), where the hand has other orders: with one, c_i(o) is its
+        share's bound already. None: the part is no cheaper than ``cutoff``."""
         f = np.zeros(N_HANDS) if floor is None else np.array(floor, float)
         for order in part:
             f[order.hand] = max(f[order.hand], self.order_bound(order))
@@ -294,7 +295,8 @@ class StepPrograms:
             need = cutoff - (f.sum() - f[i])  # hand i's cost at which the part reaches it
             if f.sum() >= cutoff:
                 return None
-            if np.isfinite(need) and _key(order) not in self._order_exact:
+            if np.isfinite(need) and len(self.orders(i, share[i])) > 1 \
+                    and _key(order) not in self._order_exact:
                 res = self.solve(*self._hand_program(i, share[i]), hands=(i,), orders=(order,),
                                  cutoff=need, relaxed=True)
                 f[i] = max(f[i], self._prove_order(order, res, need, exact=True))
