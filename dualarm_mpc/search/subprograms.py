@@ -208,7 +208,7 @@ class StepPrograms:
         wave against the best plan of those before.
 
         The parts of a one-hand relaxation prove c_i(o) of their orders. A part of a joint
-        program (both hands costed) is bounded by them (:meth:`_part_floor`): the parts are
+        program (both hands costed) is bounded by them (``_part_floor``): the parts are
         solved least bound first, each with its hands' c_i(o) as floors, and a part whose
         bound reaches the cutoff is closed unsolved."""
         split = [o for o in (self.orders(i, share) for i, share in shares) if o is not None]
