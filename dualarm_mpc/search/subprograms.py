@@ -187,12 +187,6 @@ class StepPrograms:
             self.options.work.spend()
         if res.status is Status.INFEASIBLE and np.isfinite(cutoff):
             return replace(res, bound=cutoff)  # nothing cheaper than the cutoff: its bound
-        if res.status.has_solution and res.bound > cutoff:
-            # The solver pruned every subtree bounded at the cutoff, so its bound past the
-            # cutoff proves nothing: a plan above it, even "optimal", is not the program's
-            # optimum (five objects, seed 5: one hand along one order 1.589 "optimal" against a
-            # cutoff of 1.147, where a joint plan's same hand spent less than 1.35 on it).
-            return replace(res, bound=cutoff)
         return res
 
     def by_order(self, spec: Specification, allowed: np.ndarray, shares, hands=(0, 1),
@@ -268,8 +262,11 @@ class StepPrograms:
 
     def _prove_order(self, order: Order, res: StepResult, cutoff: float, exact: bool) -> float:
         """Keep what ``res``, a solve of hand ``order.hand`` alone along ``order`` against
-        ``cutoff``, proves of c_i(o), and return it."""
-        key, bound = _key(order), lower_bound(res)
+        ``cutoff``, proves of c_i(o), and return it. Against a cutoff the solver prunes every
+        subtree bounded at it, so its bound past the cutoff proves nothing: a plan it returns
+        above the cutoff, even "optimal", is not the order's optimum (five objects, seed 5:
+        1.589 "optimal" against a cutoff of 1.147, where the order's optimum is 1.229)."""
+        key, bound = _key(order), min(lower_bound(res), cutoff)
         with self._order_lock:
             self._order_bound[key] = max(self._order_bound.get(key, 0.0), bound)
             if exact and ((res.status is Status.OPTIMAL and res.cost < cutoff)
