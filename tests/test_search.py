@@ -598,7 +598,7 @@ def test_an_orders_bound_from_a_solve_against_a_cutoff_goes_no_further_than_the_
     chained.hand(0, (1, 3))
     for order in chained.orders(0, (1, 3)):
         alone = StepPrograms(problem, 25, solve_options(s))
-        best = alone.solve(*alone._hand_program(0, (1, 3)), hands=(0,), orders=(order,),
+        best = alone.solve(*alone._relaxation((1, 3), (0,)), hands=(0,), orders=(order,),
                            relaxed=True)
         assert best.status is Status.OPTIMAL
         assert chained.order_bound(order) <= best.cost + 1e-9

@@ -73,12 +73,7 @@ def solve_relaxation(programs: StepPrograms, request: Request) -> StepResult:
     (:meth:`~dualarm_mpc.search.subprograms.StepPrograms.by_order`)."""
     key = request.key
     if isinstance(key, AloneKey):
-        # an object held now stays free to either hand, as in the node programs
-        held = [(i, j) for j in programs.held for i in range(N_HANDS)]
-        j = key.object
-        return programs.solve(restricted(programs.spec, (j,), (j,)),
-                              programs.mask([(i, j) for i in range(N_HANDS)] + held),
-                              exact=request.exact, cutoff=request.cutoff, relaxed=True,
+        return programs.alone(key.object, exact=request.exact, cutoff=request.cutoff,
                               slice_s=request.slice_s)
     i, share = key.hand, key.share
     floor = np.zeros(N_HANDS)

@@ -197,9 +197,9 @@ class StepPrograms:
         one per hand; see :meth:`orders`): its optimum is the best of the parts', each part
         solved against the best plan of those before (a cutoff), and a probe stops at the
         first part with a plan. ``start`` starts the part its plan follows. ``spread``: the
-        parts of an exact solve run on every worker at once, each against ``cutoff`` alone
-        (for a program solved while the other worker would idle), ``WAVE`` at a time, each
-        wave against the best plan of those before.
+        parts of an exact solve run on every worker at once, ``WAVE`` at a time, each wave
+        against the best plan of those before (for a program solved while the other worker
+        would idle).
 
         The parts of a one-hand relaxation prove c_i(o) of their orders. A part of a joint
         program (both hands costed) is bounded by them (``_part_floor``): the parts are
@@ -247,14 +247,21 @@ class StepPrograms:
     def hand(self, i: int, share: tuple[int, ...], **solve) -> StepResult:
         """c_i(S) (``relaxations.py``): hand i delivers ``share`` alone, only its force costed,
         the rule instances that mention other objects left out, split by its orders."""
-        return self.by_order(*self._hand_program(i, share), [(i, share)], hands=(i,),
+        return self.by_order(*self._relaxation(share, (i,)), [(i, share)], hands=(i,),
                              relaxed=True, **solve)
 
-    def _hand_program(self, i: int, share: tuple[int, ...]) -> tuple[Specification, np.ndarray]:
+    def alone(self, j: int, **solve) -> StepResult:
+        """c(j) (``relaxations.py``): both hands deliver object ``j`` alone."""
+        return self.solve(*self._relaxation((j,), range(N_HANDS)), relaxed=True, **solve)
+
+    def _relaxation(self, share: tuple[int, ...], hands: Iterable[int]
+                    ) -> tuple[Specification, np.ndarray]:
+        """The specification and η pairs of ``hands`` delivering ``share`` alone."""
         # An object held now may stay held by either hand: untouching it is not free (it would
         # slide off), so every relaxation leaves it as the node programs may.
         held = [(h, j) for j in self.held for h in range(N_HANDS)]
-        return restricted(self.spec, share, share), self.mask([(i, j) for j in share] + held)
+        pairs = [(i, j) for i in hands for j in share]
+        return restricted(self.spec, share, share), self.mask(pairs + held)
 
     def order_bound(self, order: Order) -> float:
         """c_i(o) as proven so far: hand i alone along ``order`` costs at least this."""
@@ -294,7 +301,7 @@ class StepPrograms:
                 return None
             if np.isfinite(need) and len(self.orders(i, share[i])) > 1 \
                     and _key(order) not in self._order_exact:
-                res = self.solve(*self._hand_program(i, share[i]), hands=(i,), orders=(order,),
+                res = self.solve(*self._relaxation(share[i], (i,)), hands=(i,), orders=(order,),
                                  cutoff=need, relaxed=True)
                 f[i] = max(f[i], self._prove_order(order, res, need, exact=True))
         return None if f.sum() >= cutoff else f
