@@ -48,7 +48,7 @@ from dualarm_mpc.model.spec import (
 from dualarm_mpc.planning.sequential import predict_horizon
 from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
 from dualarm_mpc.search.skeleton import FeasibilityPass, StepSearch, search_step
-from dualarm_mpc.search.subprograms import BOTH, WAVE, Node, StepPrograms
+from dualarm_mpc.search.subprograms import BOTH, WAVE, Node, StepPrograms, lower_bound
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
 
@@ -580,6 +580,63 @@ def test_a_spread_programs_parts_run_in_waves_each_cut_off_by_those_before() -> 
     assert found[1].cost == pytest.approx(found[0].cost, rel=1e-6, abs=1e-9)
     assert len(cutoffs) > WAVE and np.isinf(cutoffs[:WAVE]).all()
     assert np.isfinite(cutoffs[WAVE:]).all() and min(cutoffs) >= found[1].cost - 1e-9
+
+
+def test_a_wave_holds_only_parts_its_hands_orders_leave_below_the_best() -> None:
+    """Before each wave of a spread program, the parts that the hands' orders bound above the
+    best plan so far are closed, the orders still unknown solved alone first: a wave that
+    held one beside a part that runs would leave its worker idle. Every part put in a wave is
+    solved jointly, and the optimum is the node's (the node of
+    ``test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved``, against an
+    incumbent just above its optimum)."""
+    problem = four_objects_seed_5()
+    node = Node((0, 1, 2, 3), (0, 1, 1, 0))
+    alone = StepPrograms(problem, 20, solve_options(problem.scenario))
+    floor = np.array([alone.hand(i, node.share(i)).cost for i in range(2)])
+    optimum = alone.joint(node, floor)
+    programs = StepPrograms(problem, 20, solve_options(problem.scenario), ThreadPoolExecutor(2))
+    floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
+    solve, pool_map, joints, waves = programs.solve, programs.map, [], []
+
+    def counted(*args, **kwargs):
+        joints.extend([] if kwargs.get("relaxed") else [kwargs["orders"]])
+        return solve(*args, **kwargs)
+
+    def in_waves(f, items):
+        waves.extend([items] if items and isinstance(items[0], tuple) else [])
+        return pool_map(f, items)
+
+    programs.solve, programs.map = counted, in_waves
+    found = programs.joint(node, floor, cutoff=optimum.cost * 1.01, spread=True)
+    assert found.status is Status.OPTIMAL
+    assert found.cost == pytest.approx(optimum.cost, rel=1e-6, abs=1e-9)
+    assert 0 < len(joints) < 4 and sorted(joints) == sorted(p for w in waves for p in w)
+
+
+def test_a_part_bounded_within_the_gap_below_the_best_is_closed_with_its_own_bound() -> None:
+    """"Optimal" means within ``mip_rel_gap``, for a part as for a node: a part whose hands'
+    orders bound it that close below the best plan is closed without its joint solve (five
+    objects, seed 2: 24 s proving 3.3302 against 3.3303), and its bound is its own, not the
+    cutoff's, so the step's gap stays a proof."""
+    problem = four_objects_seed_5()
+    node = Node((0, 1, 2, 3), (0, 1, 1, 0))
+    programs = StepPrograms(problem, 20, solve_options(problem.scenario))
+    floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
+    optimum = programs.joint(node, floor)
+    least = min(sum(programs.order_bound(o) for o in part) for part in itertools.product(
+        *(programs.orders(i, node.share(i)) for i in range(2))))
+    cutoff = least / (1 - programs.options.mip_rel_gap / 2)
+    solve, joints = programs.solve, []
+
+    def counted(*args, **kwargs):
+        joints.extend([] if kwargs.get("relaxed") else [kwargs["orders"]])
+        return solve(*args, **kwargs)
+
+    programs.solve = counted
+    closed = programs.joint(node, floor, cutoff=cutoff)
+    assert closed.status is Status.INFEASIBLE and not joints
+    assert floor.sum() - 1e-9 <= least <= optimum.cost + 1e-9
+    assert lower_bound(closed) == pytest.approx(least)
 
 
 def test_an_orders_bound_from_a_solve_against_a_cutoff_goes_no_further_than_the_cutoff() -> None:
