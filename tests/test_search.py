@@ -639,6 +639,35 @@ def test_a_part_bounded_within_the_gap_below_the_best_is_closed_with_its_own_bou
     assert lower_bound(closed) == pytest.approx(least)
 
 
+@pytest.mark.slow
+def test_a_relaxation_is_solved_against_what_its_nodes_may_still_cost() -> None:
+    """The best-first loop solves c_i(S) against the incumbent less the least bound of the
+    other hand's share among the open nodes with it, not against the incumbent: in a whole
+    task each share has one node, and a solve that cannot go below that closes it. Five
+    objects, seed 0, at the minimal horizon (T = 23): a pair is solved against less than the
+    optimum itself, once its node's triple is known, and the search's optimum is that of the
+    same search with no cutoff on any relaxation."""
+    s = load_scenario("table1_vd", {"seed": 0, "random_objects": {"count": 5}, "rule": 1,
+                                    "delivery": "rest"})
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=5, n_o=5))
+    problem = StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3, 4],
+                                                             rules=rule_formulas(s)))
+    found, requests = [], []
+    for targeted in (True, False):
+        def solver(programs: StepPrograms, request: Request, targeted=targeted):
+            requests.extend([request] if targeted else [])
+            return solve_relaxation(programs, request if targeted else
+                                    dataclasses.replace(request, cutoff=np.inf))
+
+        programs = StepPrograms(problem, 23, solve_options(s), ThreadPoolExecutor(2))
+        search = StepSearch.of(programs, solver=solver)
+        found.append(search.run(search.feasible()))
+    assert all(r.status is Status.OPTIMAL for r in found)
+    assert found[0].cost == pytest.approx(found[1].cost, rel=1e-6, abs=1e-9)
+    assert any(r.exact and isinstance(r.key, HandKey) and r.cutoff < found[0].cost
+               for r in requests)
+
+
 def test_an_orders_bound_from_a_solve_against_a_cutoff_goes_no_further_than_the_cutoff() -> None:
     """The later orders of a hand's share are solved against the best before them. HiGHS then
     prunes every subtree bounded at that cutoff, and it returned one order's plan above it as

@@ -17,7 +17,7 @@ MILP narrowed, by default), so a test can wrap the real one.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -103,12 +103,12 @@ class RelaxationStore:
 
     # -- solving and keeping ------------------------------------------------------------------
 
-    def fetch(self, requests: Iterable[tuple[Key, bool]], cutoff: float = np.inf,
-              slice_s: float = np.inf) -> None:
+    def fetch(self, requests: Iterable[tuple[Key, bool]],
+              cutoff: float | Mapping[Key, float] = np.inf, slice_s: float = np.inf) -> None:
         """Solve the relaxations asked for (key, exact) and not known yet, on every worker at
-        once, each within ``slice_s``. With a ``cutoff`` (the incumbent), a relaxation that
-        cannot go below it is closed with the cutoff as its bound: every node with it is then
-        no better than the incumbent."""
+        once, each within ``slice_s``. With a ``cutoff`` (one for all, or one per key: what
+        the nodes with it may still cost), a relaxation that cannot go below it is closed with
+        the cutoff as its bound: every node with it is then no better than the incumbent."""
         # The larger share of a balanced node is solved to optimality even when only probed:
         # that costs little more than its first solution, and at a horizon with a plan the
         # nodes' bounds need it anyway. Other shares stay probes: with m_o = 3 the singles are
@@ -116,7 +116,9 @@ class RelaxationStore:
         # (bench/search-experiments.md, "Settings of the search").
         requests = [(k, e or self.larger(k)) for k, e in requests]
         todo = list(dict.fromkeys((k, e) for k, e in requests if self.wanted(k, e)))
-        results = self.programs.map(lambda ke: self._compute(*ke, cutoff, slice_s), todo)
+        cuts = {k: cutoff.get(k, np.inf) if isinstance(cutoff, Mapping) else cutoff
+                for k, _ in todo}
+        results = self.programs.map(lambda ke: self._compute(*ke, cuts[ke[0]], slice_s), todo)
         for (key, exact), res in zip(todo, results, strict=True):
             self._results[key] = res
             self.solved += 1

@@ -414,7 +414,8 @@ class BestFirst:
                 need = _largest(need)
                 for other in heap.smallest(FETCH):
                     need += _largest(self.store.missing(other))
-                self.store.fetch(((k, True) for k in need[:FETCH]), cutoff=limit)
+                needs = self._needs(need[:FETCH], [node] + heap.in_order(), limit)
+                self.store.fetch(((k, True) for k in needs), cutoff=needs)
                 heap.push(node, self.store.bound(node))
                 continue
             # Before a joint program, the cheap plans of every node with complete bounds: a
@@ -440,6 +441,25 @@ class BestFirst:
                     undecided = min(undecided, max(lb_node, lower_bound(res)))
         open_bound = min([undecided] + [self.store.bound(n) for n in heap.in_order()])
         return step_result(self.programs, best, open_bound, time.perf_counter() - t0)
+
+    def _needs(self, keys: list[Key], nodes: list[Node], limit: float) -> dict[Key, float]:
+        """For each relaxation c_i(S) of ``keys``, what it may cost before every open node
+        with it reaches ``limit``, the incumbent: ``limit`` less the least bound of the other
+        hand's share among ``nodes``. Solved against that, not the incumbent, it proves only
+        what the nodes need, sooner (in a whole task each share has one node, its complement's).
+        A relaxation whose nodes are all bounded at ``limit`` already is left out (the popped
+        node's never is: it is below ``limit``); c(j) keeps the incumbent."""
+        needs = {}
+        for key in keys:
+            if isinstance(key, HandKey):
+                other = [self.store.hand_bound(1 - key.hand, n.share(1 - key.hand))
+                         for n in nodes if n.share(key.hand) == key.share]
+                need = limit - min(other, default=0.0)
+                if need > self.store.hand_bound(key.hand, key.share):
+                    needs[key] = need
+            else:
+                needs[key] = limit
+        return needs
 
     def _beside(self, heap: _Heap, limit: float) -> list[tuple[float, Node]]:
         """The next nodes whose bounds are complete and below the incumbent, taken off the heap
