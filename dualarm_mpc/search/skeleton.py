@@ -379,7 +379,6 @@ class BestFirst:
         whichever is cheaper (the first incumbent, if any), over the nodes the pass's ``relays``
         say: the best plan and the least open bound, as :func:`step_result` reports them."""
         t0 = time.perf_counter()
-        gap = self.programs.options.mip_rel_gap
         heap = _Heap(self.skeleton.nodes(found.relays))
         best = min((p for p in (found.witness, incumbent) if p is not None),
                    key=lambda p: p.cost, default=None)
@@ -395,9 +394,9 @@ class BestFirst:
                 stats.pruned.add(node)
                 continue  # a relaxation is infeasible: so is the node
             limit = _cost(best)
-            if lb >= limit * (1 - gap) - 1e-9 or self.programs.stopped():
+            if self.programs.reaches(lb, limit) or self.programs.stopped():
                 heap.push(node, lb)
-                if lb >= limit * (1 - gap) - 1e-9:  # every open node is bounded above it
+                if self.programs.reaches(lb, limit):  # every open node is bounded above it
                     stats.pruned.update(heap.in_order())
                 break
             if self.store.ruled_out(node):
@@ -466,12 +465,11 @@ class BestFirst:
         to be evaluated beside the one popped, against the same incumbent: usually they would
         be next anyway."""
         beside: list[tuple[float, Node]] = []
-        gap = self.programs.options.mip_rel_gap
         while heap and len(beside) < BATCH - 1:
             other = heap.first()
             lb_other = self.store.bound(other)
             if self.store.missing(other) or np.isinf(lb_other) or \
-                    lb_other >= limit * (1 - gap) - 1e-9:
+                    self.programs.reaches(lb_other, limit):
                 break
             heap.pop()
             beside.append((lb_other, other))

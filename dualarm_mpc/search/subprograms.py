@@ -219,7 +219,7 @@ class StepPrograms:
             part_floor = floor
             if joint:
                 part_floor = self._part_floor(part, shares, floor, cutoff)
-                if self._reaches(part_floor.sum(), cutoff):  # nothing cheaper, within the gap
+                if self.reaches(part_floor.sum(), cutoff):  # nothing cheaper, within the gap
                     return replace(INFEASIBLE, bound=min(part_floor.sum(), cutoff))
             res = self.solve(spec, allowed, hands, floor=part_floor, orders=part, exact=exact,
                              start=start if all(_follows(start, o) for o in part) else None,
@@ -294,15 +294,15 @@ class StepPrograms:
         it is solved against what the part may still cost (a one-hand program, a fraction of
         the joint one's time), where the hand has other orders: with one, c_i(o) is its
         share's bound already. Solving stops once the floors reach ``cutoff``
-        (:meth:`_reaches`)."""
-        f = self._floors(part, floor)
+        (:meth:`reaches`)."""
+        f, share = self._floors(part, floor), dict(shares)
         for order in part:
             # the hand's cost at which the part reaches the cutoff
             need = cutoff - (f.sum() - f[order.hand])
-            if self._reaches(f.sum(), cutoff):
+            if self.reaches(f.sum(), cutoff):
                 break
-            if self._unproven(order, dict(shares), need):
-                f[order.hand] = max(f[order.hand], self._solve_order(order, dict(shares), need))
+            if self._unproven(order, share, need):
+                f[order.hand] = max(f[order.hand], self._solve_order(order, share, need))
         return f
 
     def _open_parts(self, parts: list, shares, floor, cutoff: float) -> tuple[list, list]:
@@ -316,13 +316,13 @@ class StepPrograms:
             f = self._floors(part, floor)
             for order in part:
                 most = cutoff - (f.sum() - f[order.hand])
-                if not self._reaches(f.sum(), cutoff) and self._unproven(order, share, most):
+                if not self.reaches(f.sum(), cutoff) and self._unproven(order, share, most):
                     need[order] = max(need.get(order, -np.inf), most)
         self.map(lambda order: self._solve_order(order, share, need[order]), list(need))
         bounds = {part: self._part_floor(part, shares, floor, cutoff).sum() for part in parts}
         closed = [replace(INFEASIBLE, bound=min(b, cutoff)) for b in bounds.values()
-                  if self._reaches(b, cutoff)]
-        return sorted((p for p in parts if not self._reaches(bounds[p], cutoff)),
+                  if self.reaches(b, cutoff)]
+        return sorted((p for p in parts if not self.reaches(bounds[p], cutoff)),
                       key=bounds.get), closed
 
     def _floors(self, part: tuple[Order, ...], floor) -> np.ndarray:
@@ -346,9 +346,9 @@ class StepPrograms:
                          cutoff=need, relaxed=True)
         return self._prove_order(order, res, need, exact=True)
 
-    def _reaches(self, bound: float, cutoff: float) -> bool:
-        """Whether a part bounded by ``bound`` has no plan cheaper than ``cutoff`` by more than
-        the relative gap a solve calls optimal (``mip_rel_gap``), as the search closes nodes.
+    def reaches(self, bound: float, cutoff: float) -> bool:
+        """Whether a program (a node, a part) bounded by ``bound`` has no plan cheaper than
+        ``cutoff`` by more than the relative gap a solve calls optimal (``mip_rel_gap``).
         Exactly: where the part holds the incumbent and its hands do not meet, its bound is
         the incumbent's cost less the one-hand solves' own gaps, and the joint program spent
         its whole time proving that (five objects, seed 2: 24 s, 3.3302 against 3.3303)."""
