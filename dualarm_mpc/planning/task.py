@@ -10,8 +10,11 @@ from collections.abc import Callable
 
 from dualarm_mpc.milp.horizon import solve_options
 from dualarm_mpc.milp.solver import Interrupt, Status
+from dualarm_mpc.model import motion
+from dualarm_mpc.model.mld import Model, State
 from dualarm_mpc.model.plan import Plan, Segment
 from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.spec import specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import Report, check
 from dualarm_mpc.planning.sequential import HorizonTried, KeptSteps, PlanningError, transport
@@ -100,7 +103,7 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     if first is None:
         return _passes(scenario, options, progress, on_try, on_first_plan, t0)
     if options.stopped():
-        return first
+        return _motion_bounded(scenario, first)
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
     capped = dataclasses.replace(scenario, solver=dataclasses.replace(
@@ -120,9 +123,30 @@ def plan(scenario: Scenario, *, check_first: bool = True,
         or (whole.makespan, whole.total_cost) <= (first.makespan, first.total_cost))
     best = whole if better else horizons.certify(first)
     spent = first.total_solve_time_s + (0.0 if whole is None else whole.total_solve_time_s)
-    return dataclasses.replace(best, first_plan_s=first.first_plan_s,
+    return dataclasses.replace(_motion_bounded(scenario, best), first_plan_s=first.first_plan_s,
                                unused_solve_time_s=max(0.0, spent - sum(
                                    s.solve_time_s for s in best.segments)))
+
+
+def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
+    """The whole task's plan with its step's bound raised to the motion bound
+    (``model/motion.py``) at its horizon where that is higher: no plan of that horizon or
+    shorter costs less, so neither does the task's optimum, whose horizon is at most this one.
+    Unchanged where the bound does not apply (an object that may be thrown, a second step of
+    rests under delivery ``reach``)."""
+    if result.partial or len(result.segments) != 1:
+        return result
+    (step,) = result.segments
+    objects = list(range(scenario.n_objects))
+    if specification(scenario, objects).released_only_in_goal() != frozenset(objects):
+        return result
+    bound = motion.task_bound(Model.from_scenario(scenario), State.initial(scenario), objects,
+                              step.horizon)
+    if bound <= step.bound:
+        return result
+    gap = max(0.0, (step.cost - bound) / step.cost) if step.cost > 0 else 0.0
+    return dataclasses.replace(result, segments=[dataclasses.replace(step, bound=bound,
+                                                                     gap=gap)])
 
 
 class _Horizons:

@@ -1,0 +1,183 @@
+"""The motion bound: the least force cost (17) of delivering objects, without a solve.
+
+Where no-throw (18) holds for an object for both arms, every release puts it in its goal, so
+the hand that first grabs it carries it there in one grasp, and a hand holds one object at a
+time (eq. 15): a hand's plan is a chain of carries, one per object of its share, in some order.
+On one axis the chain moves the hand back and forth, and where it must (§V-D: every object is
+grabbed below every goal, on y), each carry is a run of its own one way and each walk to the
+next object a run the other way. A run of length L in N steps of a double integrator (eq. 1,
+|v| ≤ v_max, |u| ≤ u_max per component) needs a peak speed P, and the hand, at rest at the start
+and at the end of every plan (v_hand(T) = 0), gains and loses it: Σ_k |u(k)| ≥ 2ΣP/Δt over the
+runs. Which N each run gets is the plan's choice, so the bound is the least over the splits of
+the horizon, taken through a Lagrangian (λ per step): for every λ ≥ 0,
+
+    J_i ≥ Σ_runs min_N (2P(L, N)/Δt + λN) − λ(T − 1),
+
+and the runs' terms add up, so the least over the orders of a share is a Held–Karp over its
+subsets (as the route bound, ``route.py``), and the best λ is kept for each share. A run's
+lengths come from the geometry alone:
+
+* a carry of j: from j's place, where the hand grabs it at rest (eq. 8), to its goal G_j: the
+  object is in G_j the step after its release (18) and has moved with the hand until then;
+* a walk from j to the next object m: the hand is within h_j of j in G_j at that step and
+  within h_m of m at its grab (eqs. 10–11);
+* the first walk, from the hand's start, joins the first carry where it goes the same way.
+
+Nothing else enters (the other hand, eq. 16, the other axis, the other rules): each only adds
+cost. ``tests/test_motion.py`` checks the bound against one run by hand and against the optima
+of the skeleton search. Measured on §V-D's scenes (``bench/whole.py``): about 0.6 of the
+optimum; it is the whole task's certificate where the search proves no more
+(docs/search.md, "The motion bound").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dualarm_mpc.model.mld import POSITION_TOL, REST_TOL, Model, State
+
+# 2^n subsets times n² per Held–Karp stage: twelve objects take a few seconds.
+MAX_OBJECTS = 12
+# λ (cost per step) tried for each share: the bound holds for every one, the best is kept.
+LAMBDAS = np.concatenate([[0.0], np.geomspace(1e-3, 1.0, 120)])
+
+
+def task_bound(model: Model, state: State, objects: list[int], horizon: int) -> float:
+    """A lower bound of the cost (17) of every plan of ``horizon`` steps or fewer that delivers
+    every one of ``objects`` (model indices) from ``state``, each released only in its goal
+    (no-throw (18) for both arms): the least over the hands' shares of the sum of
+    :func:`hand_bounds`. 0 where it does not apply: the state not at rest, an object held, more
+    than ``MAX_OBJECTS``, or no axis on which every carry and walk goes its own way."""
+    todo = [j for j in objects if not _in_goal(model, state, j)]
+    if not todo:
+        return 0.0
+    if len(todo) > MAX_OBJECTS or not _at_rest(state):
+        return 0.0
+    full = (1 << len(todo)) - 1
+    shares = np.arange(full + 1)
+    total = hand_bounds(model, state, 0, todo, horizon) + \
+        hand_bounds(model, state, 1, todo, horizon)[full ^ shares]
+    least = float(total.min())
+    # A bound past every plan would mean no plan within the horizon, which the route bound
+    # decides, not this one: it says nothing then.
+    return least * (1 - 1e-6) if np.isfinite(least) else 0.0
+
+
+def hand_bounds(model: Model, state: State, hand: int, objects: list[int],
+                horizon: int) -> np.ndarray:
+    """For every share S of ``objects`` (bit b of the index for ``objects[b]``), a lower bound of
+    the cost (17) of ``hand`` delivering S, summed over the axes on which the carries and walks
+    alternate (module docstring)."""
+    bound = np.zeros(1 << len(objects))
+    for axis in range(2):
+        for sense in (1.0, -1.0):
+            legs = _legs(model, state, hand, objects, axis, sense)
+            if legs is not None:
+                bound += _held_karp(model, horizon, *legs)
+    return bound
+
+
+def _in_goal(model: Model, state: State, j: int) -> bool:
+    goal = model.goals[j]
+    return bool(goal.contains(state.object_pos[j], POSITION_TOL))
+
+
+def _at_rest(state: State) -> bool:
+    return (not state.grasp.any() and np.abs(state.hand_vel).max() <= REST_TOL
+            and np.abs(state.object_vel).max(initial=0.0) <= REST_TOL)
+
+
+def _legs(model: Model, state: State, hand: int, objects: list[int], axis: int,
+          sense: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The run lengths on ``axis`` with carries going ``sense``: each object's carry, the walk
+    between each pair and the first walk (against ``sense``, and with it, added to the first
+    carry); None where a carry or a walk between two objects is not a run of its own."""
+    place = sense * state.object_pos[objects, axis]
+    half = model.grasp_half[objects] + POSITION_TOL
+    near = np.array([g.lo[axis] if sense > 0 else -g.hi[axis] for g in
+                     (model.goals[j] for j in objects)]) - POSITION_TOL  # the goal's near side
+    carry = near - place
+    walk = near[:, None] - half[:, None] - place[None, :] - half[None, :]
+    apart = ~np.eye(len(objects), dtype=bool)
+    if np.any(carry <= 0) or np.any(walk[apart] <= 0):
+        return None
+    start = sense * state.hand_pos[hand, axis]
+    back = np.maximum(0.0, start - place - half)
+    ahead = np.maximum(0.0, place - half - start)
+    return carry, walk, back, ahead + carry
+
+
+def _held_karp(model: Model, horizon: int, carry: np.ndarray, walk: np.ndarray,
+               back: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """max_λ of the least over the orders of each share of Σ_runs min_N (2P/Δt + λN) − λ(T−1)."""
+    n = len(carry)
+    steps = max(horizon - 1, 0)  # v(0) and v(T) are zero: the runs share steps 1 … T−1
+    price = _Price(model, steps)
+    first_leg = price(back) + price(first)  # (Λ, n)
+    leg = price(walk) + price(carry)[:, None, :]  # (Λ, n, n): from j to k, then k's carry
+    best = np.full((len(LAMBDAS), 1 << n, n), np.inf)
+    for j in range(n):
+        best[:, 1 << j, j] = first_leg[:, j]
+    for share in range(1, 1 << n):
+        row = best[:, share, :]
+        if not np.isfinite(row).any():
+            continue
+        ahead = (row[:, :, None] + leg).min(axis=1)  # (Λ, n)
+        for k in range(n):
+            if not share >> k & 1:
+                nxt = best[:, share | 1 << k, k]
+                np.minimum(nxt, ahead[:, k], out=nxt)
+    least = best.min(axis=2)
+    least[:, 0] = 0.0
+    bound = (least - LAMBDAS[:, None] * steps).max(axis=0)
+    bound[0] = 0.0
+    return np.where(np.isfinite(bound), bound, np.inf)
+
+
+class _Price:
+    """min_N (2P(L, N)/Δt + λN) for run lengths L, every λ of ``LAMBDAS``: P(L, N) the least peak
+    speed with which N steps cover L, at most ``steps`` steps."""
+
+    def __init__(self, model: Model, steps: int) -> None:
+        self.model = model
+        n = np.arange(1, steps + 1)
+        k = np.arange(1, steps + 1)
+        ramp = model.u_max * model.dt * np.minimum(k[None, :], n[:, None] + 1 - k[None, :])
+        self.n = n
+        self.ramp = np.where(k[None, :] <= n[:, None], ramp, 0.0)  # (N, k)
+
+    def __call__(self, lengths: np.ndarray) -> np.ndarray:
+        flat = np.asarray(lengths, float).ravel()
+        out = np.array([self._one(L) for L in flat])  # (m, Λ)
+        return np.moveaxis(out, -1, 0).reshape((len(LAMBDAS),) + np.shape(lengths))
+
+    def _one(self, length: float) -> np.ndarray:
+        if length <= 0:
+            return np.zeros(len(LAMBDAS))
+        peak = self._peak(length)
+        if not np.isfinite(peak).any():
+            return np.full(len(LAMBDAS), np.inf)
+        cost = 2 * peak / self.model.dt
+        return (cost[None, :] + LAMBDAS[:, None] * self.n[None, :]).min(axis=1)
+
+    def _peak(self, length: float) -> np.ndarray:
+        """The least peak speed per number of steps N (inf where v_max cannot cover it):
+        N steps at peak P cover at most Δt·Σ_k min(P, u_max·Δt·k, u_max·Δt·(N + 1 − k)), the
+        speed rising from zero and back, and splitting them between runs covers less."""
+        dt = self.model.dt
+
+        def reach(p: np.ndarray) -> np.ndarray:
+            return dt * np.minimum(p[:, None], self.ramp).sum(axis=1)
+
+        hi = np.full(len(self.n), self.model.v_max)
+        able = reach(hi) >= length
+        lo = np.zeros(len(self.n))
+        for _ in range(50):
+            mid = (lo + hi) / 2
+            enough = reach(mid) >= length
+            hi = np.where(enough, mid, hi)
+            lo = np.where(enough, lo, mid)
+        return np.where(able, lo, np.inf)
+
+
+__all__ = ["MAX_OBJECTS", "hand_bounds", "task_bound"]
