@@ -177,7 +177,8 @@ def test_the_first_plan_carries_the_horizons_the_stopped_search_proved_empty(
     (step,) = heard(*((t, Status.INFEASIBLE) for t in range(T - 3, T))).certify(
         stopped_at_first).segments
     assert step.horizons_undecided == [] and step.horizon_proven_minimal
-    assert step.bound == 0 and step.status == "feasible"  # the cost is still not proven
+    # the cost bounded by the motion bound alone (model/motion.py), as the plan was
+    assert step.bound == joined.bound > 0 and step.status == "feasible"
 
 
 def test_the_whole_search_reaches_past_the_horizon_cap_up_to_the_first_plan() -> None:

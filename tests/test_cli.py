@@ -443,5 +443,6 @@ def test_plan_budget_writes_the_best_complete_plan_when_it_runs_out(tmp_path, ca
     data = json.loads(out.read_text())
     (step,) = data["segments"]
     assert step["sequential_steps"] >= 2 and step["objects"] == [0, 1, 2, 3, 4]
-    assert step["bound"] == 0 and not step["horizon_proven_minimal"]
+    assert not step["horizon_proven_minimal"]
+    assert 0 < step["bound"] < step["cost"]  # the motion bound: no search bounded the cost
     assert all(d is not None for d in data["delivered_step"])
