@@ -24,8 +24,8 @@ lengths come from the geometry alone:
 * the first walk, from the hand's start, joins the first carry where it goes the same way.
 
 Nothing else enters (the other hand, eq. 16, the other axis, the other rules): each only adds
-cost. ``tests/test_motion.py`` checks the bound against one run by hand and against the optima
-of the skeleton search. On §V-D's 27 scenes of three to five objects whose optima the search
+cost. ``tests/test_motion.py`` checks a run's least peak against a linear program and each
+share's bound against the optimum of its one-hand program (the search's c_i(S)). On §V-D's 27 scenes of three to five objects whose optima the search
 proves (``bench/whole.py``) it is 0.40–0.67 of the optimum: the whole task's certificate where
 the search proves less (docs/search.md, "The anytime plan").
 """
