@@ -25,16 +25,17 @@ lengths come from the geometry alone:
 
 Nothing else enters (the other hand, eq. 16, the other axis, the other rules): each only adds
 cost. ``tests/test_motion.py`` checks a run's least peak against a linear program and each
-share's bound against the optimum of its one-hand program (the search's c_i(S)). On §V-D's 27 scenes of three to five objects whose optima the search
-proves (``bench/whole.py``) it is 0.40–0.67 of the optimum: the whole task's certificate where
-the search proves less (docs/search.md, "The anytime plan").
+share's bound against the optimum of its one-hand program (the search's c_i(S)). On §V-D's 27
+scenes of three to five objects whose optima the search proves (``bench/whole.py``) it is
+0.40–0.67 of the optimum: the whole task's certificate where the search proves less
+(docs/search.md, "The anytime plan").
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from dualarm_mpc.model.mld import POSITION_TOL, REST_TOL, Model, State
+from dualarm_mpc.model.mld import POSITION_TOL, Model, State, at_rest, in_goal
 
 # 2^n subsets times n² per Held–Karp stage: twelve objects take a few seconds.
 MAX_OBJECTS = 12
@@ -48,10 +49,8 @@ def task_bound(model: Model, state: State, objects: list[int], horizon: int) -> 
     (no-throw (18) for both arms): the least over the hands' shares of the sum of
     :func:`hand_bounds`. 0 where it does not apply: the state not at rest, an object held, more
     than ``MAX_OBJECTS``, or no axis on which every carry and walk goes its own way."""
-    todo = [j for j in objects if not _in_goal(model, state, j)]
-    if not todo:
-        return 0.0
-    if len(todo) > MAX_OBJECTS or not _at_rest(state):
+    todo = [j for j in objects if not in_goal(state.object_pos[j], model.goals[j])]
+    if not todo or len(todo) > MAX_OBJECTS or not _at_rest(state):
         return 0.0
     full = (1 << len(todo)) - 1
     shares = np.arange(full + 1)
@@ -77,14 +76,9 @@ def hand_bounds(model: Model, state: State, hand: int, objects: list[int],
     return bound
 
 
-def _in_goal(model: Model, state: State, j: int) -> bool:
-    goal = model.goals[j]
-    return bool(goal.contains(state.object_pos[j], POSITION_TOL))
-
-
 def _at_rest(state: State) -> bool:
-    return (not state.grasp.any() and np.abs(state.hand_vel).max() <= REST_TOL
-            and np.abs(state.object_vel).max(initial=0.0) <= REST_TOL)
+    return not state.grasp.any() and at_rest(state.hand_vel).all() and \
+        at_rest(state.object_vel).all()
 
 
 def _legs(model: Model, state: State, hand: int, objects: list[int], axis: int,
