@@ -11,8 +11,9 @@ import dataclasses
 import pytest
 
 import dualarm_mpc as dm
-from dualarm_mpc.milp.horizon import StepResult
+from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import Status
+from dualarm_mpc.model.mld import Model, State, reachability
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning import sequential
 from dualarm_mpc.planning.sequential import HorizonTried, solve_horizon
@@ -151,9 +152,13 @@ def test_a_stop_after_the_whole_tasks_first_plan_returns_it_whole(stopped_at_fir
     (joined,) = plan.segments
     assert plan.verified and not plan.partial and joined.sequential_steps >= 2
     assert all(d is not None for d in plan.delivered_step)
-    # nothing decided below its horizon: no search ran
-    assert joined.horizons_undecided == list(range(1, joined.horizon))
-    assert not joined.horizon_proven_minimal
+    # no search ran: below its horizon only what reachability rules out (predictT without
+    # the route bound the stop ends), every object's first step in its goal
+    scenario = whole_of_four()
+    first_goal = reachability(Model.from_scenario(scenario), State.initial(scenario),
+                              scenario.solver.max_horizon).first_goal
+    assert joined.horizons_undecided == list(range(int(first_goal.max()), joined.horizon))
+    assert 1 < first_goal.max() < joined.horizon and not joined.horizon_proven_minimal
 
 
 def test_the_first_plan_carries_the_horizons_the_stopped_search_proved_empty(
@@ -164,7 +169,7 @@ def test_the_first_plan_carries_the_horizons_the_stopped_search_proved_empty(
     T = joined.horizon
 
     def heard(*results: tuple[int, Status]) -> _Horizons:
-        horizons = _Horizons(None)
+        horizons = _Horizons(whole_of_four(), solve_options(whole_of_four()), None)
         for horizon, status in results:
             horizons(HorizonTried(1, None, StepResult.no_plan(status, horizon)))
         horizons(HorizonTried(2, None, StepResult.no_plan(Status.INFEASIBLE, T - 1)))

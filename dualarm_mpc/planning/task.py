@@ -9,15 +9,21 @@ import time
 from collections.abc import Callable
 
 from dualarm_mpc.milp.horizon import solve_options
-from dualarm_mpc.milp.solver import Interrupt, Status
+from dualarm_mpc.milp.solver import Interrupt, SolveOptions, Status
 from dualarm_mpc.model import motion
 from dualarm_mpc.model.mld import Model, State
 from dualarm_mpc.model.plan import Plan, Segment
 from dualarm_mpc.model.scenario import Scenario
-from dualarm_mpc.model.spec import specification
+from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import Report, check
-from dualarm_mpc.planning.sequential import HorizonTried, KeptSteps, PlanningError, transport
+from dualarm_mpc.planning.sequential import (
+    HorizonTried,
+    KeptSteps,
+    PlanningError,
+    predict_horizon,
+    transport,
+)
 
 __all__ = ["ConflictError", "VerificationError", "first_pass", "plan", "whole_task"]
 
@@ -102,13 +108,13 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     first = _sequential_first(scenario, options, progress, on_try, on_first_plan, t0)
     if first is None:
         return _passes(scenario, options, progress, on_try, on_first_plan, t0)
-    if options.stopped():
-        return _motion_bounded(scenario, first)
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
     capped = dataclasses.replace(scenario, solver=dataclasses.replace(
         scenario.solver, max_horizon=first.makespan))
-    horizons = _Horizons(on_try)
+    horizons = _Horizons(capped, options, on_try)
+    if options.stopped():
+        return _motion_bounded(scenario, horizons.certify(first))
     try:
         whole = _passes(capped, options, progress, horizons, None, t0)
     except PlanningError as err:
@@ -154,8 +160,9 @@ class _Horizons:
     ``on_try`` (and passed on to ``on_try``): the first it tries is predictT, below which no
     horizon has a plan (reachability, the route bound); those it proves infeasible after it."""
 
-    def __init__(self, on_try: Callable[[HorizonTried], None] | None) -> None:
-        self.on_try = on_try
+    def __init__(self, scenario: Scenario, options: SolveOptions,
+                 on_try: Callable[[HorizonTried], None] | None) -> None:
+        self.scenario, self.options, self.on_try = scenario, options, on_try
         self.first: int | None = None
         self.empty: set[int] = set()
 
@@ -172,11 +179,15 @@ class _Horizons:
         """The whole task's first plan (one joined step) with what the search proved of the
         shorter horizons: from predictT, the horizons up to the first not proven empty have no
         plan and the rest below the plan's are undecided; none undecided, its horizon is
-        proven minimal."""
+        proven minimal. Stopped before the first horizon was tried, predictT is counted here,
+        without the route bound that the stop ends: reachability alone."""
         (step,) = first.segments
-        if self.first is None:  # stopped before the first horizon was decided
-            return first
         least = self.first
+        if least is None:
+            objects = list(range(self.scenario.n_objects))
+            least = predict_horizon(StepProblem(self.scenario, State.initial(self.scenario),
+                                                specification(self.scenario, objects)),
+                                    self.options)
         while least in self.empty:
             least += 1
         undecided = list(range(least, step.horizon))
