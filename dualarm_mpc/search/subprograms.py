@@ -51,6 +51,11 @@ SPLIT_MAX_OBJECTS = 5
 # The parts of a spread program solved at once: fixed, not one per worker, so that which parts
 # a better plan cuts off, and the plan picked among equal optima, do not depend on the workers.
 WAVE = 2
+# A joint program split by order over more objects than this (past Table II's m_o = 3: a whole
+# task's nodes) is solved with HiGHS's own settings, not ``small_trees``: its tree runs to
+# thousands of nodes, where full presolve, restarts and reliability branching pay
+# (docs/search.md, "Solver settings").
+LARGE_JOINT = 3
 
 
 @dataclass(frozen=True)
@@ -176,7 +181,10 @@ class StepPrograms:
         ``slice_s`` at most, and never past the horizon's deadline."""
         t0 = time.perf_counter()
         remaining = max(min(self.deadline - t0, slice_s), 1e-3)
-        options = replace(self.options, time_limit_s=remaining, small_trees=True, cutoff=cutoff)
+        large = exact and not relaxed and len(hands) == N_HANDS and \
+            sum(len(order.objects) for order in orders) > LARGE_JOINT
+        options = replace(self.options, time_limit_s=remaining, small_trees=not large,
+                          cutoff=cutoff)
         if not exact:
             options = replace(options, mip_rel_gap=1.0)
         res = self.program.solve(spec, options, _start(start), allowed=allowed, hands=hands,
