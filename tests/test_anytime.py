@@ -169,7 +169,8 @@ def test_the_first_plan_carries_the_horizons_the_stopped_search_proved_empty(
     T = joined.horizon
 
     def heard(*results: tuple[int, Status]) -> _Horizons:
-        horizons = _Horizons(whole_of_four(), solve_options(whole_of_four()), None)
+        scenario = whole_of_four()
+        horizons = _Horizons(scenario, solve_options(scenario), None)
         for horizon, status in results:
             horizons(HorizonTried(1, None, StepResult.no_plan(status, horizon)))
         horizons(HorizonTried(2, None, StepResult.no_plan(Status.INFEASIBLE, T - 1)))

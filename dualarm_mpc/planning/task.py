@@ -143,16 +143,22 @@ def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
     if result.partial or len(result.segments) != 1:
         return result
     (step,) = result.segments
-    objects = list(range(scenario.n_objects))
-    if specification(scenario, objects).released_only_in_goal() != frozenset(objects):
+    whole = _whole_step(scenario)
+    objects = list(whole.spec.objects)
+    if whole.spec.released_only_in_goal() != frozenset(objects):
         return result
-    bound = motion.task_bound(Model.from_scenario(scenario), State.initial(scenario), objects,
-                              step.horizon)
+    bound = motion.task_bound(Model.from_scenario(scenario), whole.state, objects, step.horizon)
     if bound <= step.bound:
         return result
     gap = max(0.0, (step.cost - bound) / step.cost) if step.cost > 0 else 0.0
     return dataclasses.replace(result, segments=[dataclasses.replace(step, bound=bound,
                                                                      gap=gap)])
+
+
+def _whole_step(scenario: Scenario) -> StepProblem:
+    """The whole task as one step: every object, from the scenario's start."""
+    objects = list(range(scenario.n_objects))
+    return StepProblem(scenario, State.initial(scenario), specification(scenario, objects))
 
 
 class _Horizons:
@@ -184,10 +190,7 @@ class _Horizons:
         (step,) = first.segments
         least = self.first
         if least is None:
-            objects = list(range(self.scenario.n_objects))
-            least = predict_horizon(StepProblem(self.scenario, State.initial(self.scenario),
-                                                specification(self.scenario, objects)),
-                                    self.options)
+            least = predict_horizon(_whole_step(self.scenario), self.options)
         while least in self.empty:
             least += 1
         undecided = list(range(least, step.horizon))
