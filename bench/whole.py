@@ -7,7 +7,8 @@ each rule and seed, the scene planned twice through
 object, anytime from sequential transportation's plan at ``task.FIRST_PASS`` joined into one
 step) and by sequential transportation with ``--sequential`` (m_o, n_o) (Algorithm 1, n_o at
 most n). Per plan: wall time until the first plan was verified (``first_plan_s``) and until the
-run ended (``wall_time_s``), whether the plan is the search's or still the first (``joined``),
+run ended (``wall_time_s``), whether the plan is the search's or still the first (``joined``:
+sequential transportation's; ``guided``: the route-guided plan, ``planning/guided.py``),
 cost (17), the proven
 bound and gap, whether every horizon is proven minimal, the makespan (steps of Δt), the steps,
 and the skeleton search's work (``search_stats`` summed over the steps: expansions, prunes,
@@ -108,6 +109,7 @@ def plan_one(n: int, rule: int, seed: int, method: str, args: argparse.Namespace
                 makespan=plan.trajectory.steps, steps=len(plan.segments),
                 horizons=[s.horizon for s in plan.segments], stopped=stop.is_set(),
                 joined=plan.segments[0].sequential_steps is not None,
+                guided=plan.segments[0].guided,
                 least_horizon=least_horizon(plan),
                 **{k: sum(s.get(k, 0) for s in stats) for k in STATS})
     except dm.VerificationError as err:
@@ -157,7 +159,7 @@ def summary_table(runs: list[dict]) -> str:
                 if of["whole"][s]["status"] == "ok" and
                 of["sequential"].get(s, {}).get("status") == "ok"]
         proven = sum(r["gap"] <= 1e-4 and r["horizon_proven_minimal"] for r in whole)
-        searched = [r for r in whole if not r.get("joined")]
+        searched = [r for r in whole if not r.get("joined") and not r.get("guided")]
         pair = [w for w, _ in both], [s for _, s in both]
         rows.append([
             str(n), str(rule), f"{len(whole)}/{len(of['whole'])}",
@@ -179,6 +181,13 @@ def makespan(r: dict) -> str:
         else str(r["makespan"])
 
 
+def origin(r: dict) -> str:
+    """Whose the whole plan is: the search's, or still a first plan's."""
+    if r.get("joined"):
+        return "sequential's, joined"
+    return "route-guided" if r.get("guided") else "the search's"
+
+
 def seed_table(runs: list[dict]) -> str:
     """Per scene: each method's cost, makespan and time (what the decomposition gives away)."""
     by = {(r["objects"], r["rule"], r["seed"], r["method"]): r for r in runs}
@@ -194,7 +203,7 @@ def seed_table(runs: list[dict]) -> str:
                 cells += [r["status"]] + ["—"] * (5 if method == "whole" else 2)
                 continue
             if method == "whole":
-                cells += ["sequential's, joined" if r.get("joined") else "the search's",
+                cells += [origin(r),
                           f"{r['cost']:.3f}", f"{r['gap']:.3f}", makespan(r),
                           f"{r['first_plan_s']:.1f}", f"{r['wall_time_s']:.1f}"]
             else:

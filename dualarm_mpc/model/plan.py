@@ -105,6 +105,9 @@ class Segment:
     # A whole-task step joined from this many sequential steps (``Plan.as_one_step``: the
     # first plan of ``--mo all``), which claims nothing beyond being a plan; None: searched
     sequential_steps: int | None = None
+    # A whole-task step whose plan is the route-guided program's first (planning/guided.py):
+    # shorter than sequential transportation's, its cost unproven
+    guided: bool = False
 
     def to_json(self) -> dict:
         """The step as an entry of the plan file's ``segments`` (docs/formats.md)."""
@@ -129,6 +132,7 @@ class Segment:
             "bound": round(self.bound, 9),
             "search_stats": self.search_stats,
             "sequential_steps": self.sequential_steps,
+            "guided": self.guided,
         }
 
     @property

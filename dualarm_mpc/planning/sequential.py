@@ -521,15 +521,7 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
         delivered_step[j] = 0
 
     def finish(partial: bool) -> Plan:
-        return Plan(
-            dt=scenario.robot.dt, rule=scenario.task.rule, delivery=scenario.task.delivery,
-            goals={k: list(v) for k, v in scenario.task.goals.items()},
-            objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
-                     for o in scenario.task.objects],
-            workspace=list(scenario.robot.workspace), trajectory=trajectory,
-            delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
-            partial=partial,
-        )
+        return _plan(scenario, trajectory, delivered_step, segments, partial)
 
     def tried(res: StepResult) -> None:  # within plan_step: of the step being planned
         on_try(HorizonTried(len(segments) + 1, problem, res))
@@ -554,20 +546,9 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
         state = State.last(step)
         now = delivered_objects(scenario, state.object_pos, state.object_vel)
         newly = [j for j in objects if now[j] and not done[j]]
-        for j in newly:  # the first step in the true goal box (the planner aims goal_margin in)
-            goal = scenario.task.goals[scenario.task.objects[j].goal]
-            inside = np.flatnonzero(in_goal(step.object_pos[:, j], goal))
-            delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
+        _delivered_at(scenario, step, newly, offset, delivered_step)
         done = done | now
-        seg = Segment(objects=objects, delivered=newly, horizon=res.horizon,
-                      status=res.status.value, solve_time_s=total, cost=res.cost,
-                      cpu_time_s=cpu, binaries=res.binaries, gap=float(res.gap),
-                      horizon_proven_minimal=res.minimal,
-                      witness_cost=res.witness_cost, witness_horizon=res.witness_horizon,
-                      horizons_proven_by_cpsat=list(res.proofs),
-                      horizons_undecided=list(res.undecided),
-                      shorter_plan=None if res.passed_over is None else list(res.passed_over),
-                      bound=float(min(res.bound, res.cost)), search_stats=res.search_stats)
+        seg = _segment(objects, newly, res, total, cpu)
         segments.append(seg)
         if progress:
             progress(seg)
@@ -576,3 +557,53 @@ def transport(scenario: Scenario, options: SolveOptions | None = None,
         raise PlanningError(f"sequential transportation stalled: {missing} not delivered",
                             finish(partial=True))
     return finish(partial=False)
+
+
+def one_step(problem: StepProblem, res: StepResult, total_s: float, cpu_s: float) -> Plan:
+    """The plan of one step from the scenario's start (``res``, a plan of ``problem``, found in
+    ``total_s`` wall and ``cpu_s`` CPU seconds): a whole task's plan (``--mo all``) made outside
+    Algorithm 1's loop, not verified."""
+    scenario, objects = problem.scenario, list(problem.spec.objects)
+    step = embed_step(scenario, problem.state, objects, res.trajectory)
+    now = delivered_objects(scenario, step.object_pos[-1], step.object_vel[-1])
+    newly = [j for j in objects if now[j]]
+    delivered_step: list[int | None] = [None] * scenario.n_objects
+    _delivered_at(scenario, step, newly, 0, delivered_step)
+    return _plan(scenario, Trajectory.still(problem.state).then(step), delivered_step,
+                 [_segment(objects, newly, res, total_s, cpu_s)], partial=False)
+
+
+def _plan(scenario: Scenario, trajectory: Trajectory, delivered_step: list[int | None],
+          segments: list[Segment], partial: bool) -> Plan:
+    return Plan(
+        dt=scenario.robot.dt, rule=scenario.task.rule, delivery=scenario.task.delivery,
+        goals={k: list(v) for k, v in scenario.task.goals.items()},
+        objects=[{"name": o.name, "goal": o.goal, "grasp_half_size": o.grasp_half_size}
+                 for o in scenario.task.objects],
+        workspace=list(scenario.robot.workspace), trajectory=trajectory,
+        delivered_step=delivered_step, segments=segments, search=scenario.solver.search,
+        partial=partial,
+    )
+
+
+def _delivered_at(scenario: Scenario, step: Trajectory, newly: list[int], offset: int,
+                  delivered_step: list[int | None]) -> None:
+    """Each object of ``newly``'s first step in its true goal box (the planner aims
+    goal_margin in), ``offset`` the step's start within the plan."""
+    for j in newly:
+        goal = scenario.task.goals[scenario.task.objects[j].goal]
+        inside = np.flatnonzero(in_goal(step.object_pos[:, j], goal))
+        delivered_step[j] = offset + int(inside[0] if inside.size else step.steps)
+
+
+def _segment(objects: list[int], newly: list[int], res: StepResult, total: float,
+             cpu: float) -> Segment:
+    return Segment(objects=objects, delivered=newly, horizon=res.horizon,
+                   status=res.status.value, solve_time_s=total, cost=res.cost,
+                   cpu_time_s=cpu, binaries=res.binaries, gap=float(res.gap),
+                   horizon_proven_minimal=res.minimal,
+                   witness_cost=res.witness_cost, witness_horizon=res.witness_horizon,
+                   horizons_proven_by_cpsat=list(res.proofs),
+                   horizons_undecided=list(res.undecided),
+                   shorter_plan=None if res.passed_over is None else list(res.passed_over),
+                   bound=float(min(res.bound, res.cost)), search_stats=res.search_stats)

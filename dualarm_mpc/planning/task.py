@@ -17,12 +17,15 @@ from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import Report, check
+from dualarm_mpc.planning.guided import guided_plan
 from dualarm_mpc.planning.sequential import (
     HorizonTried,
     KeptSteps,
     PlanningError,
+    one_step,
     predict_horizon,
     transport,
+    unproven,
 )
 
 __all__ = ["ConflictError", "VerificationError", "first_pass", "plan", "whole_task"]
@@ -74,7 +77,8 @@ def plan(scenario: Scenario, *, check_first: bool = True,
 
     An anytime plan: a complete verified plan first, then the search that may better it.
     Of the whole task (:func:`whole_task`), the first is sequential transportation's at
-    ``FIRST_PASS``, joined into one step (:meth:`~dualarm_mpc.model.plan.Plan.as_one_step`), and
+    ``FIRST_PASS``, joined into one step (:meth:`~dualarm_mpc.model.plan.Plan.as_one_step`), or
+    the route-guided plan (:mod:`~dualarm_mpc.planning.guided`) where that is shorter, and
     the whole-task search's plan replaces it where it is proven (optimal at a proven-minimal
     horizon), or its makespan is shorter, or as short and cheaper. Within it, and for every
     other task, where the rules allow throws the first is each step's no-throw witness, then
@@ -108,6 +112,10 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     first = _sequential_first(scenario, options, progress, on_try, on_first_plan, t0)
     if first is None:
         return _passes(scenario, options, progress, on_try, on_first_plan, t0)
+    spent = first.total_solve_time_s
+    guided = None if options.stopped() else _guided(scenario, first, options)
+    if guided is not None:
+        first, spent = guided, spent + guided.total_solve_time_s
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
     capped = dataclasses.replace(scenario, solver=dataclasses.replace(
@@ -128,10 +136,25 @@ def plan(scenario: Scenario, *, check_first: bool = True,
         (whole.horizon_proven_minimal and all(s.proven_optimal for s in whole.segments))
         or (whole.makespan, whole.total_cost) <= (first.makespan, first.total_cost))
     best = whole if better else horizons.certify(first)
-    spent = first.total_solve_time_s + (0.0 if whole is None else whole.total_solve_time_s)
+    spent += 0.0 if whole is None else whole.total_solve_time_s
     return dataclasses.replace(_motion_bounded(scenario, best), first_plan_s=first.first_plan_s,
                                unused_solve_time_s=max(0.0, spent - sum(
                                    s.solve_time_s for s in best.segments)))
+
+
+def _guided(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | None:
+    """The whole task's route-guided plan (``planning/guided.py``) where it is shorter than
+    ``first``, verified, with ``first``'s ``first_plan_s``; None where there is none."""
+    problem = _whole_step(scenario)
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    found = guided_plan(problem, first.makespan, options)
+    if found is None:
+        return None
+    plan = one_step(problem, unproven(found), time.perf_counter() - t0,
+                    time.process_time() - cpu0)
+    plan = dataclasses.replace(plan, segments=[dataclasses.replace(plan.segments[0],
+                                                                   guided=True)])
+    return _verified(scenario, plan, first.first_plan_s)
 
 
 def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
