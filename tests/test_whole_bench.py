@@ -21,6 +21,7 @@ def test_two_objects_as_one_task_and_sequentially(tmp_path, capsys) -> None:
     one = by["whole"]
     assert one["steps"] == 1 and one["horizon_proven_minimal"] and one["gap"] <= 1e-4
     assert one["bound"] <= one["cost"] and one["expansions"] >= 1
+    assert not one["joined"] and not one["guided"]  # the search's own plan
     assert by["sequential"]["steps"] == 2  # m_o = 1: one object a step
     # delivery rest: the sequential steps joined are a plan of the whole task, whose horizon is
     # proven minimal
