@@ -48,7 +48,7 @@ def guided_plan(problem: StepProblem, below: int, options: SolveOptions) -> Step
     apply (not a whole task of ``OBJECTS``, an object that may be thrown), or none is found in
     time. At each horizon the ``CANDIDATES`` best shares whose routes it allows are probed in
     turn, each for ``SLICE`` of the time; the first plan found is then bettered
-    (:func:`_bettered`). Its status and bound are the restricted program's."""
+    (``_bettered``). Its status and bound are the restricted program's."""
     scenario, state, spec = problem.scenario, problem.state, problem.spec
     objects = list(spec.objects)
     if len(objects) not in OBJECTS or spec.m_o != len(objects) or \
