@@ -202,6 +202,33 @@ def test_the_whole_search_reaches_past_the_horizon_cap_up_to_the_first_plan() ->
     assert 20 < step.horizon < first.makespan and plan.verified
 
 
+def test_the_search_starts_from_the_first_plan_at_its_horizon(monkeypatch) -> None:
+    """Four objects, seed 3: sequential transportation's plan, joined, is 20 steps long, and so
+    is the whole task's least horizon. The search meets the first plan there as its incumbent
+    and betters it: a cheaper plan at the same horizon, proven optimal."""
+    incumbents: dict[int, StepResult | None] = {}
+
+    def heard(*args, incumbent=None, **kw) -> StepResult:
+        if args[0].spec.m_o == 4:  # the whole step's
+            incumbents[args[1]] = incumbent
+        return solve_horizon(*args, incumbent=incumbent, **kw)
+
+    monkeypatch.setattr(sequential, "solve_horizon", heard)
+    scenario = dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 3, "random_objects": {"count": 4}, "rule": 1, "delivery": "rest",
+        "solver": {"time_limit_s": 120}}))  # time to spare under load
+    firsts: list[dm.Plan] = []
+    plan = dm.plan(scenario, on_first_plan=firsts.append)
+    (first,) = firsts
+    (step,) = plan.segments
+    known = incumbents[first.makespan]
+    assert known is not None and known.cost == pytest.approx(first.total_cost)
+    assert all(v is None for T, v in incumbents.items() if T != first.makespan)
+    assert plan.verified and plan.makespan == first.makespan
+    assert step.horizon_proven_minimal and step.status == "optimal"
+    assert plan.total_cost < first.total_cost and step.sequential_steps is None
+
+
 def test_a_stop_within_a_horizon_keeps_the_plan_it_found(monkeypatch) -> None:
     """A stop that ends the whole task's search within a horizon after it found a plan (here
     at the last moment of the search) keeps that plan: shorter than the joined first plan,

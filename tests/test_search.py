@@ -47,7 +47,12 @@ from dualarm_mpc.model.spec import (
 )
 from dualarm_mpc.planning.sequential import predict_horizon
 from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
-from dualarm_mpc.search.skeleton import FeasibilityPass, StepSearch, search_step
+from dualarm_mpc.search.skeleton import (
+    FeasibilityPass,
+    StepSearch,
+    _without_handover,
+    search_step,
+)
 from dualarm_mpc.search.subprograms import BOTH, WAVE, Node, StepPrograms, lower_bound
 
 # --- untouched objects (spec.untouchable) ---------------------------------------------------------
@@ -493,6 +498,31 @@ def test_an_incumbent_cuts_the_search_short_and_leaves_its_optimum(seed: int) ->
     again = search_step(problem, T, incumbent=plain)
     assert again.status is Status.OPTIMAL
     assert again.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)
+
+
+def test_an_incumbent_no_object_changes_hands_in_decides_its_horizon(monkeypatch) -> None:
+    """A plan in which no object is held by both hands is a plan of a node with one hand per
+    object: as the incumbent it decides its horizon as the feasibility pass would, so the pass
+    is not run, and the optimum is the search's from nothing. One handed over does not."""
+    s = random_scene(1)
+    spec = specification(s, [0, 1, 2])
+    problem = StepProblem(s, State.initial(s), spec)
+    T = first_feasible(s, spec).horizon
+    plain = search_step(problem, T)
+    assert plain.status is Status.OPTIMAL
+    passes = []
+    decide = FeasibilityPass.decide
+    monkeypatch.setattr(FeasibilityPass, "decide",
+                        lambda self: passes.append(self) or decide(self))
+    again = search_step(problem, T, incumbent=plain)
+    assert passes == [] and again.status is Status.OPTIMAL
+    assert again.cost == pytest.approx(plain.cost, rel=1e-6, abs=1e-9)
+    assert _without_handover(plain)
+    grasp = plain.trajectory.grasp.copy()
+    hand, j = np.argwhere(grasp[1:].any(axis=0))[0]
+    grasp[-1, 1 - hand, j] = 1  # the other hand holds it too, at the end
+    assert not _without_handover(dataclasses.replace(
+        plain, trajectory=dataclasses.replace(plain.trajectory, grasp=grasp)))
 
 
 

@@ -103,10 +103,12 @@ class Segment:
     # (``skeleton.SearchStats``): nodes expanded, nodes pruned, seconds in leaf programs
     search_stats: dict | None = None
     # A whole-task step joined from this many sequential steps (``Plan.as_one_step``: the
-    # first plan of ``--mo all``), which claims nothing beyond being a plan; None: searched
+    # first plan of ``--mo all``), which claims nothing beyond being a plan unless the search
+    # reached its horizon from it and bettered nothing (then the search's certificate); None:
+    # searched
     sequential_steps: int | None = None
     # A whole-task step whose plan is the route-guided program's first (planning/guided.py):
-    # shorter than sequential transportation's, its cost unproven
+    # shorter than sequential transportation's, its cost unproven (as above)
     guided: bool = False
 
     def to_json(self) -> dict:

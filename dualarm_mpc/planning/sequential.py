@@ -130,11 +130,13 @@ class KeptSteps:
     second: each step's no-throw witness and each step planned in full, with the wall seconds
     it took. Where the second pass meets a step problem of the first (the same objects from the
     same state: its first step, and every step after one whose plan was its witness) it takes
-    them instead of searching again."""
+    them instead of searching again. ``known``: a plan of a step problem found before its
+    search (the whole task's first plan), the search's first incumbent at its horizon."""
 
     def __init__(self) -> None:
         self.witnesses: dict[tuple, tuple[StepResult | None, float, dict | None]] = {}
         self.steps: dict[tuple, tuple[StepResult, float]] = {}
+        self.known: dict[tuple, StepResult] = {}
         self.reused_s = 0.0  # seconds of the first pass's searches the second took
 
     @staticmethod
@@ -199,7 +201,7 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
                                         search_stats=stats.record()),
                     time.perf_counter() - t0)
     if found is None:
-        res = first_plan(problem, options, tried)
+        res = first_plan(problem, options, tried, None if kept is None else kept.known.get(key))
     else:
         res = below_witness(problem, found, options, tried)
     res = dataclasses.replace(res, search_stats=stats.record())
@@ -347,12 +349,15 @@ def below_witness(problem: StepProblem, found: StepResult, options: SolveOptions
 
 
 def first_plan(problem: StepProblem, options: SolveOptions | None = None,
-               on_try: Callable[[StepResult], None] | None = None) -> StepResult:
+               on_try: Callable[[StepResult], None] | None = None,
+               known: StepResult | None = None) -> StepResult:
     """Lines 4–6 of Algorithm 1 as the paper: from predictT, raise T until a plan is found (an
     infeasible or timed-out horizon counts as "not yet"; the result's ``minimal`` says whether
     every one was proven infeasible: by the search, or by the second prover
     (:func:`second_prover`), which works on the horizons the search left undecided beside its
-    next ones). A stop (``options.interrupt``) ends it: with the plan a horizon's search had
+    next ones). ``known``: a plan of the step found before, the search's first incumbent at its
+    horizon (:func:`solve_horizon`), so that a search that gets there betters it or bounds
+    it. A stop (``options.interrupt``) ends it: with the plan a horizon's search had
     found by then (its optimum unproven: the status says so), else with :class:`Interrupted`.
 
     With the skeleton search and a specification whose feasibility is monotone in T
@@ -377,7 +382,8 @@ def first_plan(problem: StepProblem, options: SolveOptions | None = None,
                 check_cap = False  # once
                 if horizon_ruled_out(problem, cap, CAP_CHECK_TIME_S, options):
                     raise PlanningError(diagnose(problem, None, options, True), proven=True)
-            res = solve_horizon(problem, T, options, below=below)
+            at = known if known is not None and known.horizon == T else None
+            res = solve_horizon(problem, T, options, below=below, incumbent=at)
             if not res.status.has_solution:  # a stopped solve without a plan decides nothing;
                 _stop_if_asked(options)  # with one, its plan holds, its optimum unproven
             if on_try:

@@ -8,7 +8,9 @@ import dataclasses
 import time
 from collections.abc import Callable
 
-from dualarm_mpc.milp.horizon import solve_options
+import numpy as np
+
+from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import Interrupt, SolveOptions, Status
 from dualarm_mpc.model import motion
 from dualarm_mpc.model.mld import Model, State
@@ -124,7 +126,7 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     if options.stopped():
         return _motion_bounded(scenario, horizons.certify(first))
     try:
-        whole = _passes(capped, options, progress, horizons, None, t0)
+        whole = _passes(capped, options, progress, horizons, None, t0, known=first)
     except PlanningError as err:
         if isinstance(err, VerificationError) or err.proven:
             raise  # a defect, or a proof that contradicts the first plan: never hidden
@@ -135,7 +137,7 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     better = whole is not None and not whole.partial and (
         (whole.horizon_proven_minimal and all(s.proven_optimal for s in whole.segments))
         or (whole.makespan, whole.total_cost) <= (first.makespan, first.total_cost))
-    best = whole if better else horizons.certify(first)
+    best = _origin(whole, first) if better else horizons.certify(first)
     spent += 0.0 if whole is None else whole.total_solve_time_s
     return dataclasses.replace(_motion_bounded(scenario, best), first_plan_s=first.first_plan_s,
                                unused_solve_time_s=max(0.0, spent - sum(
@@ -155,6 +157,28 @@ def _guided(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | No
     plan = dataclasses.replace(plan, segments=[dataclasses.replace(plan.segments[0],
                                                                    guided=True)])
     return _verified(scenario, plan, first.first_plan_s)
+
+
+def _origin(whole: Plan, first: Plan) -> Plan:
+    """The search's plan ``whole``, marked as ``first`` where it is ``first`` itself: the
+    search's incumbent at its horizon (:func:`_incumbent`), bettered by nothing, whose
+    certificate the search gave."""
+    if whole.makespan != first.makespan or len(whole.segments) != 1 or \
+            not np.array_equal(whole.trajectory.force, first.trajectory.force):
+        return whole
+    (step,), (own,) = whole.segments, first.segments
+    return dataclasses.replace(whole, segments=[dataclasses.replace(
+        step, guided=own.guided, sequential_steps=own.sequential_steps)])
+
+
+def _incumbent(first: Plan) -> StepResult:
+    """The whole task's first plan as a plan of its one step (:func:`_whole_step`): the
+    search's first incumbent at its horizon, so that a search that reaches that horizon
+    starts from it (no feasibility pass) and betters it or bounds its cost."""
+    (step,) = first.segments
+    return StepResult(Status.FEASIBLE, step.horizon, first.trajectory, step.cost,
+                      solve_time_s=0.0, build_time_s=0.0, gap=step.gap,
+                      binaries=step.binaries, solution=None)
 
 
 def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
@@ -265,10 +289,14 @@ def _sequential_first(scenario: Scenario, options, progress, on_try, on_first_pl
     return told[-1] if told else None
 
 
-def _passes(scenario: Scenario, options, progress, on_try, on_first_plan, t0: float) -> Plan:
+def _passes(scenario: Scenario, options, progress, on_try, on_first_plan, t0: float,
+            known: Plan | None = None) -> Plan:
     """Algorithm 1 by the scenario's policies, anytime from each step's no-throw witness where
-    the rules allow throws (:func:`plan`)."""
+    the rules allow throws (:func:`plan`). ``known``: the whole task's first plan, the search's
+    incumbent at its horizon (:func:`_incumbent`)."""
     kept = KeptSteps()
+    if known is not None:
+        kept.known[KeptSteps.key(_whole_step(scenario))] = _incumbent(known)
     first = transport(scenario, options, progress, on_try, kept, quick=True)
     if first.partial:
         return first

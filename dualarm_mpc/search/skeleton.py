@@ -649,10 +649,14 @@ def search_step(problem: StepProblem, horizon: int, options: SolveOptions | None
     :func:`~dualarm_mpc.milp.horizon.solve_step`. ``below``: the relaxations with a plan at
     ``horizon − 1`` (``RelaxationStore.below``), replaced by this horizon's, for the next horizon of
     the same step. ``incumbent``: a plan of the horizon known already (the step's no-throw witness),
-    the optimisation's first incumbent and cutoff: only cheaper plans are searched for."""
+    the optimisation's first incumbent and cutoff: only cheaper plans are searched for; where
+    no object of it is held by both hands, the feasibility pass is not run."""
     t0 = time.perf_counter()
     with _searching(problem, horizon, options, below) as search:
-        found = search.feasible()
+        # A plan without a hand-over is one of a node with one hand per object: it decides the
+        # horizon as the pass would, and the pass's time goes to the optimisation instead.
+        found = Feasibility(Status.FEASIBLE) if _without_handover(incumbent) \
+            else search.feasible()
         if found.status is Status.INFEASIBLE:
             res = step_result(search.programs, None, np.inf, time.perf_counter() - t0)
         else:  # a plan, or undecided: the optimisation reports the time limit then
@@ -662,3 +666,10 @@ def search_step(problem: StepProblem, horizon: int, options: SolveOptions | None
         below.update(search.store.with_plans())
     return replace(res, solve_time_s=time.perf_counter() - t0,
                    search_stats=search.programs.stats.record())
+
+
+def _without_handover(plan: StepResult | None) -> bool:
+    """Whether ``plan`` is a plan in which no object is held by both hands."""
+    if plan is None or plan.trajectory is None:
+        return False
+    return not plan.trajectory.grasp.any(axis=0).all(axis=0).any()
