@@ -44,8 +44,9 @@ figures: $(VENV)/.installed-test
 # -n auto: a pytest-xdist worker per core; much of the suite (Drake's physics, the controller's
 # Python systems) runs on one core, so two workers take 0.6 of the serial time on 2 cores.
 # worksteal: the two paper scenes in Drake are a third of the suite; an idle worker takes over
-# what is left of the other's queue. -rs: a skipped test says why.
-PYTEST := $(BIN)/python -m pytest -q -rs -n auto --dist worksteal
+# what is left of the other's queue. -rs: a skipped test says why; --durations: the slowest
+# tests, which keep the suite within its ten minutes (docs/testing.md).
+PYTEST := $(BIN)/python -m pytest -q -rs --durations=15 -n auto --dist worksteal
 
 test: $(VENV)/.installed-test
 	$(PYTEST) -m 'not falsify'
