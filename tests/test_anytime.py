@@ -17,7 +17,7 @@ from dualarm_mpc.model.mld import Model, State, reachability
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning import sequential
 from dualarm_mpc.planning.sequential import HorizonTried, solve_horizon
-from dualarm_mpc.planning.task import FIRST_PASS, _Horizons, first_pass
+from dualarm_mpc.planning.task import FIRST_PASS, _Horizons, _origin, first_pass
 
 
 def four_objects(rule: int) -> dm.Scenario:
@@ -227,6 +227,27 @@ def test_the_search_starts_from_the_first_plan_at_its_horizon(monkeypatch) -> No
     assert plan.verified and plan.makespan == first.makespan
     assert step.horizon_proven_minimal and step.status == "optimal"
     assert plan.total_cost < first.total_cost and step.sequential_steps is None
+
+
+def test_the_search_s_plan_that_is_its_incumbent_keeps_the_first_plan_s_mark() -> None:
+    """Where the search returns its incumbent, the first plan, bettered by nothing, the plan is
+    still sequential transportation's (its ``sequential_steps``) with the search's certificate;
+    any other plan of the search is its own."""
+    stop = dm.Interrupt()
+    first = dm.plan(whole_of_four(), stop=stop, on_first_plan=lambda _: stop.set())
+    (own,) = first.segments
+    assert own.sequential_steps
+    certified = dataclasses.replace(own, sequential_steps=None, status="optimal",
+                                    bound=own.cost, gap=0.0)
+    searched = dataclasses.replace(first, segments=[certified])
+    (step,) = _origin(searched, first).segments
+    assert step.sequential_steps == own.sequential_steps and not step.guided
+    assert step.status == "optimal" and step.bound == own.cost
+    force = first.trajectory.force.copy()
+    force[0, 0, 0] += 1e-3
+    other = dataclasses.replace(searched, trajectory=dataclasses.replace(
+        first.trajectory, force=force))
+    assert _origin(other, first).segments[0].sequential_steps is None
 
 
 def test_a_stop_within_a_horizon_keeps_the_plan_it_found(monkeypatch) -> None:

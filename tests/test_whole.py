@@ -17,8 +17,8 @@ from dualarm_mpc.model.spec import StepProblem, rule_formulas, specification
 
 # The monolithic MILP proves these steps in 10 s to over 5 min each on three objects, longer on
 # four: one case in `make test`, the rest by `make falsify` (docs/testing.md), hours of MILP.
-CASES = [(3, 1), *(pytest.param(n, seed, marks=[pytest.mark.slow, pytest.mark.falsify])
-                   for n, seeds in ((3, (0, *range(2, 10))), (4, range(10))) for seed in seeds)]
+CASES = [(3, 7), *(pytest.param(n, seed, marks=[pytest.mark.slow, pytest.mark.falsify])
+                   for n, seeds in ((3, (*range(7), 8, 9)), (4, range(10))) for seed in seeds)]
 
 
 def whole(objects: int, seed: int) -> dm.Scenario:
