@@ -82,7 +82,9 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     ``FIRST_PASS``, joined into one step (:meth:`~dualarm_mpc.model.plan.Plan.as_one_step`), or
     the route-guided plan (:mod:`~dualarm_mpc.planning.guided`) where that is shorter, and
     the whole-task search's plan replaces it where it is proven (optimal at a proven-minimal
-    horizon), or its makespan is shorter, or as short and cheaper. Within it, and for every
+    horizon), or its makespan is shorter, or as short and cheaper; at the first plan's horizon
+    the search starts from it (its incumbent), and where it betters nothing the first plan
+    stays, with the search's certificate. Within it, and for every
     other task, where the rules allow throws the first is each step's no-throw witness, then
     Algorithm 1 by the horizon policy, which takes every search of the first pass it meets
     again, and the cheaper complete plan is returned. Where neither applies (rule 1, or no
