@@ -178,9 +178,8 @@ def _incumbent(first: Plan) -> StepResult:
     search's first incumbent at its horizon, so that a search that reaches that horizon
     starts from it (no feasibility pass) and betters it or bounds its cost."""
     (step,) = first.segments
-    return StepResult(Status.FEASIBLE, step.horizon, first.trajectory, step.cost,
-                      solve_time_s=0.0, build_time_s=0.0, gap=step.gap,
-                      binaries=step.binaries, solution=None)
+    return StepResult.replayed(Status.FEASIBLE, step.horizon, first.trajectory, step.cost,
+                               gap=step.gap)
 
 
 def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
