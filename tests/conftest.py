@@ -1,13 +1,18 @@
-"""Fixtures shared by the tests: scenario files written from the shared scenes (scenes.py); and
-under CI, no test skipped."""
+"""Fixtures shared by the tests: scenario files written from the shared scenes (scenes.py),
+`make demo`'s run made once a session; and under CI, no test skipped."""
 
 from __future__ import annotations
 
+import fcntl
 import os
+from pathlib import Path
 
 import pytest
 import yaml
+from demo import demo_commands
 from scenes import TWO_OBJECTS
+
+from dualarm_mpc.cli.app import main
 
 
 @pytest.fixture
@@ -22,6 +27,26 @@ def scenario_file(tmp_path):
         return path
 
     return write
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory) -> Path:
+    """The directory of `make demo`'s closed-loop run (its ``simulate`` command, read from the
+    Makefile): replay.html, summary.json, run.png. Made once a session, by the first xdist
+    worker to ask (about 35 s); the others wait for it: the run is lockstep, the same bytes
+    wherever it is made."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # the session's directory, above each worker's own
+    out = root / "demo-run"
+    with open(root / "demo-run.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (out / "made").exists():
+            out.mkdir(exist_ok=True)
+            (args,) = [c[1:] for c in demo_commands(out) if c[1] == "simulate"]
+            assert main(args) == 0
+            (out / "made").touch()
+    return out
 
 
 

@@ -57,11 +57,10 @@ def test_plan_png_is_made_from_the_plan_the_code_makes(sidecar, tmp_path) -> Non
 
 
 @pytest.mark.slow  # the demo's closed-loop run, lockstep (about 40 s on 2 cores)
-def test_the_run_figures_are_made_from_the_run_the_code_makes(sidecar, tmp_path) -> None:
+def test_the_run_figures_are_made_from_the_run_the_code_makes(sidecar, demo_run) -> None:
     """The demo's run made again: its summary JSON (lockstep: the same bytes on any machine) is
     what docs/img/run.png was drawn from and docs/img/replay.png's replay recorded."""
-    assert main(command(tmp_path, "simulate")) == 0
-    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary = json.loads((demo_run / "summary.json").read_text())
     assert "wall_clock" not in summary  # lockstep: nothing of the machine in it
     for name in ("run.png", "replay.png"):
         assert figures.summary_sha256(summary) == sidecar["images"][name]["summary_sha256"], \

@@ -21,7 +21,6 @@ from pathlib import Path
 import matplotlib.image
 import numpy as np
 import pytest
-from demo import demo_commands
 from figures import VIEW, start_chromium
 from scenes import ONE_ON_THE_ROBOT, yaml_text
 
@@ -272,18 +271,10 @@ def test_record_contacts_adds_the_contact_forces_and_the_hidden_geometry(
                                                  "proximity"]
 
 
-def demo_command(out: Path) -> list[str]:
-    """`make demo`'s ``simulate`` command line, read from the Makefile, writing into ``out``."""
-    (args,) = [c[1:] for c in demo_commands(out) if c[1] == "simulate"]
-    return args
-
-
 @pytest.fixture(scope="module")
-def demo(chromium, tmp_path_factory) -> tuple[Path, dict]:
+def demo(chromium, demo_run) -> tuple[Path, dict]:
     """`make demo`'s run (§V-C, 32 s), recorded: its replay and its summary."""
-    out = tmp_path_factory.mktemp("demo")
-    assert main(demo_command(out)) == 0
-    return out / "replay.html", json.loads((out / "summary.json").read_text())
+    return demo_run / "replay.html", json.loads((demo_run / "summary.json").read_text())
 
 
 def said_at(summary: dict, t: float) -> tuple[int, int, dict]:
