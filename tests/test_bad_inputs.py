@@ -102,6 +102,7 @@ CASES = [
     (["plan", "base.yaml", "--mo", "0"], "argument --mo: must be >= 1"),
     (["plan", "base.yaml", "--mo", "every"], "argument --mo: expected an integer or all"),
     (["plan", "base.yaml", "--gap", "2"], "argument --gap: must be between 0 and 1"),
+    (["plan", "base.yaml", "--mo", "all", "--no", "3"], "argument --no: not with --mo all"),
     (["plan", "base.yaml", "--rule", "3"], "argument --rule: invalid choice"),
     (["plan", "base.yaml", "--time-limit", "-5"], "argument --time-limit: must be a positive"),
     (["plan", "base.yaml", "--set", "max_speed: [1"], "--set 'max_speed: [1':2: not valid YAML"),

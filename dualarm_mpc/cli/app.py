@@ -24,6 +24,7 @@ from dualarm_mpc.cli.arguments import (
     OUTPUT_FLAGS,
     Once,
     directory,
+    flags_problem,
     output,
     paths_problem,
     plot,
@@ -116,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
     from dualarm_mpc.milp.solver import SolverUnavailable
 
     try:
-        problem = paths_problem(args)
+        problem = flags_problem(args) or paths_problem(args)
         if problem:
             args.parser.error(problem)
         return args.run(args)

@@ -130,6 +130,15 @@ def plot(path: str) -> str:
 OUTPUT_FLAGS = ("out", "plot", "html", "summary")
 
 
+def flags_problem(args: argparse.Namespace) -> str | None:
+    """Flags that contradict each other: ``--no`` with ``--mo all``, which considers every
+    object (n_o = m_o = all) and would silently drop it."""
+    if getattr(args, "mo", None) == ALL and getattr(args, "no", None) is not None:
+        return (f"argument --no: not with --mo all, which considers every object (n_o = all); "
+                f"got --no {args.no}")
+    return None
+
+
 def paths_problem(args: argparse.Namespace) -> str | None:
     """Two outputs on one file, or an output on an input (the scenario file, ``--export``'s
     files): one of them would be lost. Symbolic links, ``..`` and hard links are seen
