@@ -103,6 +103,8 @@ CASES = [
     (["plan", "base.yaml", "--mo", "every"], "argument --mo: expected an integer or all"),
     (["plan", "base.yaml", "--gap", "2"], "argument --gap: must be between 0 and 1"),
     (["plan", "base.yaml", "--mo", "all", "--no", "3"], "argument --no: not with --mo all"),
+    (["plan", "table1_vd", "--mo", "all", "--set", "{random_objects: {count: 14}}"],
+     "--mo all (the whole task in one step): 14 objects, more than one step may deliver"),
     (["plan", "base.yaml", "--rule", "3"], "argument --rule: invalid choice"),
     (["plan", "base.yaml", "--time-limit", "-5"], "argument --time-limit: must be a positive"),
     (["plan", "base.yaml", "--set", "max_speed: [1"], "--set 'max_speed: [1':2: not valid YAML"),

@@ -15,7 +15,7 @@ from dualarm_mpc.milp.solver import Interrupt, SolveOptions, Status
 from dualarm_mpc.model import motion
 from dualarm_mpc.model.mld import Model, State
 from dualarm_mpc.model.plan import Plan, Segment
-from dualarm_mpc.model.scenario import Scenario
+from dualarm_mpc.model.scenario import MAX_STEP_DELIVERIES, Scenario, ScenarioError
 from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning.consistency import Report, check
@@ -62,8 +62,13 @@ def whole_task(scenario: Scenario) -> Scenario:
     them, exact as every step (minimal horizon, then minimal cost at it, eq. 17); its
     certificate (``Segment.bound``, ``gap``, ``horizon_proven_minimal``) is then the whole
     plan's. Under delivery ``reach`` an object may pass through its goal without resting
-    there, and a second step delivers it."""
+    there, and a second step delivers it. More objects than a step may deliver
+    (``MAX_STEP_DELIVERIES``, docs/scenarios.md "Caps") is a :class:`ScenarioError`."""
     n = scenario.n_objects
+    if n > MAX_STEP_DELIVERIES:
+        raise ScenarioError(f"--mo all (the whole task in one step): {n} objects, more than one "
+                            f"step may deliver (m_o at most {MAX_STEP_DELIVERIES}); plan it in "
+                            f"steps of at most {MAX_STEP_DELIVERIES}")
     whole = dataclasses.replace(scenario, task=dataclasses.replace(scenario.task, m_o=n, n_o=n))
     whole.validate()
     return whole
