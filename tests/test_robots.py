@@ -44,6 +44,47 @@ def _hands(scenario):
     return station, [plant.EvalBodyPoseInWorld(context, hand) for hand in station.hands]
 
 
+def test_the_clearance_of_the_panda_pair_is_every_pairs_least():
+    """The Pandas' links are meshes, bounded by their hulls' balls (``bounding_radius``): over
+    random postures, arms crossed among them, the clearance skips pairs and still finds the
+    least of every pair's distance, of the arms and of the hands and the objects."""
+    from dualarm_mpc.systems.clearance import Clearance
+
+    builder = DiagramBuilder()
+    station = AddStation(builder, load_scenario("panda_vd", on_robot=True))
+    clearances = [builder.AddSystem(Clearance(pairs))
+                  for pairs in (station.arm_pairs, station.hand_object_pairs)]
+    for system in clearances:
+        builder.Connect(station.scene_graph.get_query_output_port(),
+                        system.get_geometry_query_input_port())
+    diagram = builder.Build()
+    context = diagram.CreateDefaultContext()
+    plant, sg = station.plant, station.scene_graph
+    pc = plant.GetMyMutableContextFromRoot(context)
+    lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+    rng = np.random.default_rng(0)
+    crossed = 0
+    for k in range(100):
+        q = plant.GetPositions(pc)
+        arms = np.isfinite(lo) & np.isfinite(hi)
+        q[arms] = rng.uniform(lo[arms], hi[arms])
+        if k % 2:  # each arm leant out towards the other (shoulder forward, elbow open): met
+            for first in (0, 9):  # each Panda's seven joints, then its two fingers
+                q[first] = rng.uniform(-0.4, 0.4)
+                q[first + 1] = rng.uniform(0.8, 1.7)
+                q[first + 3] = rng.uniform(-0.8, -0.07)
+        plant.SetPositions(pc, q)
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(context))
+        for system, pairs in zip(clearances, (station.arm_pairs, station.hand_object_pairs),
+                                 strict=True):
+            every = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance
+                        for a, b in pairs)
+            assert system.clearance(query) == every
+        crossed += min(query.ComputeSignedDistancePairClosestPoints(a, b).distance
+                       for a, b in station.arm_pairs) < 0
+    assert crossed > 0
+
+
 def test_the_panda_pair_stands_at_its_bases_with_the_hands_at_their_start():
     scenario = load_scenario("panda_vd", on_robot=True)
     station, hands = _hands(scenario)
