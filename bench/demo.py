@@ -44,6 +44,13 @@ def demo_commands(out: Path) -> list[list[str]]:
     return commands
 
 
+def demo_arguments(out: Path, name: str) -> list[str]:
+    """The arguments of ``dualarm-mpc`` in the ``demo`` target's ``name`` command (``plan``,
+    ``simulate``), writing into ``out``."""
+    (args,) = [c[1:] for c in demo_commands(out) if c[1] == name]
+    return args
+
+
 def measure() -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)

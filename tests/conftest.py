@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from demo import demo_commands
+from demo import demo_arguments
 from scenes import TWO_OBJECTS
 
 from dualarm_mpc.cli.app import main
@@ -43,8 +43,7 @@ def demo_run(tmp_path_factory) -> Path:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
         if not (out / "made").exists():
             out.mkdir(exist_ok=True)
-            (args,) = [c[1:] for c in demo_commands(out) if c[1] == "simulate"]
-            assert main(args) == 0
+            assert main(demo_arguments(out, "simulate")) == 0
             (out / "made").touch()
     return out
 

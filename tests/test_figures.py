@@ -14,7 +14,7 @@ from pathlib import Path
 
 import figures
 import pytest
-from demo import demo_commands
+from demo import demo_arguments, demo_commands
 
 from dualarm_mpc.cli.app import main
 
@@ -25,13 +25,6 @@ REGENERATE = "the code makes another figure than the committed one: run `make fi
 @pytest.fixture(scope="module")
 def sidecar() -> dict:
     return json.loads(figures.SIDECAR.read_text())
-
-
-def command(out: Path, name: str) -> list[str]:
-    """`make demo`'s ``name`` command (``plan``, ``simulate``), read from the Makefile, writing
-    into ``out``: the arguments of ``dualarm-mpc``."""
-    (args,) = [c[1:] for c in demo_commands(out) if c[1] == name]
-    return args
 
 
 def test_every_image_of_the_readme_and_docs_is_made_by_make_figures(sidecar) -> None:
@@ -51,7 +44,7 @@ def test_every_image_of_the_readme_and_docs_is_made_by_make_figures(sidecar) -> 
 def test_plan_png_is_made_from_the_plan_the_code_makes(sidecar, tmp_path) -> None:
     """The demo's plan made again (in process, about 6 s): its JSON less the wall and CPU times
     is what docs/img/plan.png was drawn from."""
-    assert main(command(tmp_path, "plan")) == 0
+    assert main(demo_arguments(tmp_path, "plan")) == 0
     plan = json.loads((tmp_path / "plan.json").read_text())
     assert figures.plan_sha256(plan) == sidecar["images"]["plan.png"]["plan_sha256"], REGENERATE
 

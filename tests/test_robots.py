@@ -75,13 +75,10 @@ def test_the_clearance_of_the_panda_pair_is_every_pairs_least():
                 q[first + 3] = rng.uniform(-0.8, -0.07)
         plant.SetPositions(pc, q)
         query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(context))
-        for system, pairs in zip(clearances, (station.arm_pairs, station.hand_object_pairs),
-                                 strict=True):
-            every = min(query.ComputeSignedDistancePairClosestPoints(a, b).distance
-                        for a, b in pairs)
-            assert system.clearance(query) == every
-        crossed += min(query.ComputeSignedDistancePairClosestPoints(a, b).distance
-                       for a, b in station.arm_pairs) < 0
+        every = [min(query.ComputeSignedDistancePairClosestPoints(a, b).distance
+                     for a, b in pairs) for pairs in (station.arm_pairs, station.hand_object_pairs)]
+        assert [system.clearance(query) for system in clearances] == every
+        crossed += every[0] < 0
     assert crossed > 0
 
 
