@@ -25,10 +25,15 @@ from dualarm_mpc.model.route import route_steps
 from dualarm_mpc.model.scenario import load_scenario
 from dualarm_mpc.model.spec import restricted, specification
 
+# Objects drawn beside the goals' heights as well as below them: on neither axis do all carries
+# and walks alternate, so only the bound from the hand's events speaks.
+BESIDE = [-0.25, 0.25, 0.3, 0.7]
 
-def _scene(n: int, seed: int, rule: int = 1):
+
+def _scene(n: int, seed: int, rule: int = 1, region: list[float] | None = None):
+    objects = {"count": n} if region is None else {"count": n, "region": region}
     return load_scenario("table1_vd", {"seed": seed, "rule": rule, "delivery": "rest",
-                                       "random_objects": {"count": n}})
+                                       "random_objects": objects})
 
 
 @pytest.mark.parametrize(("length", "steps"), [(0.05, 3), (0.3, 4), (0.6, 8), (0.9, 9), (1.2, 20)])
@@ -105,13 +110,24 @@ def test_a_hand_s_bound_is_below_its_one_hand_optimum_for_one_object() -> None:
     assert np.mean(ratios) > 0.4  # the bound is worth having
 
 
+def test_the_events_bound_a_hand_whose_runs_do_not_alternate() -> None:
+    scene = _scene(3, 0, region=BESIDE)
+    model, state = Model.from_scenario(scene), State.initial(scene)
+    assert all(motion._legs(model, state, i, [0, 1, 2], axis, sense) is None
+               for i in range(N_HANDS) for axis in range(2) for sense in (1.0, -1.0))
+    ratios = _checked(scene, [(0,), (1,), (2,), (0, 2)], slack=0)
+    assert np.mean(ratios) > 0.2
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize(("seed", "slack"), [(0, 0), (1, 0), (2, 0), (1, 2)])
-def test_a_hand_s_bound_is_below_its_one_hand_optimum(seed, slack) -> None:
-    scene = _scene(3, seed)
+@pytest.mark.parametrize(("seed", "slack", "region"),
+                         [(0, 0, None), (1, 0, None), (2, 0, None), (1, 2, None),
+                          (1, 0, BESIDE), (2, 1, BESIDE)])
+def test_a_hand_s_bound_is_below_its_one_hand_optimum(seed, slack, region) -> None:
+    scene = _scene(3, seed, region=region)
     shares = [(j,) for j in range(3)] + list(itertools.combinations(range(3), 2))
     ratios = _checked(scene, shares, slack)
-    assert np.mean(ratios) > 0.4
+    assert np.mean(ratios) > 0.2 if region else np.mean(ratios) > 0.4
 
 
 def test_the_bound_says_nothing_where_it_does_not_hold() -> None:
@@ -122,17 +138,30 @@ def test_the_bound_says_nothing_where_it_does_not_hold() -> None:
     assert motion.task_bound(model, moving, [0, 1, 2], 20) == 0.0
     held = dataclasses.replace(state, grasp=np.array([[1, 0, 0], [0, 0, 0]]))
     assert motion.task_bound(model, held, [0, 1, 2], 20) == 0.0
-    # an object whose goal lies below it on y and beside it on x: no axis where runs alternate
-    below = dataclasses.replace(state, object_pos=state.object_pos + [0.0, 1.2])
-    assert motion.task_bound(model, below, [0, 1, 2], 20) == 0.0
 
 
-def _first_plan(n: int, seed: int, rule: int) -> dm.Plan:
+def _first_plan(n: int, seed: int, rule: int, region: list[float] | None = None) -> dm.Plan:
     """The whole task's first plan (sequential transportation's, joined): planning stops as
     soon as it exists."""
     stop = dm.Interrupt()
-    scenario = dm.whole_task(_scene(n, seed, rule))
+    scenario = dm.whole_task(_scene(n, seed, rule, region))
     return dm.plan(scenario, check_first=False, stop=stop, on_first_plan=lambda _: stop.set())
+
+
+@pytest.mark.parametrize(("n", "seed", "region"),
+                         [(4, 0, None), (4, 1, None), (6, 2, None), (4, 0, BESIDE),
+                          (4, 3, BESIDE), (6, 1, BESIDE)])
+def test_every_hand_of_a_verified_plan_costs_at_least_its_share_s_bound(n, seed, region) -> None:
+    # Any plan bounds it, not only an optimum: each hand's force in the plan, against the
+    # bound of the objects it grabs first, at the plan's horizon (chains of two and three).
+    plan = _first_plan(n, seed, 1, region)
+    scene = _scene(n, seed, region=region)
+    model, state, traj = Model.from_scenario(scene), State.initial(scene), plan.trajectory
+    first_hand = traj.grasp[traj.grasp.any(axis=1).argmax(axis=0), :, range(n)].argmax(axis=1)
+    for i in range(N_HANDS):
+        share = sum(1 << j for j in range(n) if first_hand[j] == i)
+        bound = motion.hand_bounds(model, state, i, list(range(n)), traj.steps)[share]
+        assert 0 < bound <= np.abs(traj.force[:, i]).sum() + 1e-7
 
 
 def test_a_whole_plan_no_search_bounded_carries_the_motion_bound() -> None:
