@@ -2,7 +2,8 @@
 
 Soundness is what matters: a hand's bound for a share must not exceed the optimum of the
 one-hand program of that share (the search's relaxation c_i(S), the same MILP), at the route
-bound's horizon and past it; a run's least peak speed is checked against a linear program;
+bound's horizon and past it, nor the force of that hand in any verified plan; a run's least
+peak speed is checked against a linear program;
 and the whole task's plan carries the bound where the search proves less, only where no-throw
 lets it hold.
 """
@@ -127,7 +128,7 @@ def test_a_hand_s_bound_is_below_its_one_hand_optimum(seed, slack, region) -> No
     scene = _scene(3, seed, region=region)
     shares = [(j,) for j in range(3)] + list(itertools.combinations(range(3), 2))
     ratios = _checked(scene, shares, slack)
-    assert np.mean(ratios) > 0.2 if region else np.mean(ratios) > 0.4
+    assert np.mean(ratios) > (0.2 if region else 0.4)
 
 
 def test_the_bound_says_nothing_where_it_does_not_hold() -> None:
@@ -155,9 +156,11 @@ def test_every_hand_of_a_verified_plan_costs_at_least_its_share_s_bound(n, seed,
     # Any plan bounds it, not only an optimum: each hand's force in the plan, against the
     # bound of the objects it grabs first, at the plan's horizon (chains of two and three).
     plan = _first_plan(n, seed, 1, region)
+    assert plan.verified
     scene = _scene(n, seed, region=region)
     model, state, traj = Model.from_scenario(scene), State.initial(scene), plan.trajectory
-    first_hand = traj.grasp[traj.grasp.any(axis=1).argmax(axis=0), :, range(n)].argmax(axis=1)
+    first_grab = traj.grasp.any(axis=1).argmax(axis=0)  # (n,): the step each is first held
+    first_hand = traj.grasp[first_grab, :, range(n)].argmax(axis=1)
     for i in range(N_HANDS):
         share = sum(1 << j for j in range(n) if first_hand[j] == i)
         bound = motion.hand_bounds(model, state, i, list(range(n)), traj.steps)[share]
