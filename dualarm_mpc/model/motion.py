@@ -164,10 +164,9 @@ def _event_bound(model: Model, state: State, hand: int, objects: list[int],
     of the steps (module docstring, "Both axes")."""
     first, carry, walk = _displacements(model, state, hand, objects)
     n = len(objects)
-    rest = np.zeros_like(first)
-    first_leg = _leg_prices(model, horizon, rest, first, carry, from_rest=True)  # (Λ, n)
+    first_leg = _leg_prices(model, horizon, None, first, carry)  # (Λ, n)
     leg = _leg_prices(model, horizon, np.broadcast_to(carry[:, None], walk.shape), walk,
-                      np.broadcast_to(carry[None, :], walk.shape), from_rest=False)
+                      np.broadcast_to(carry[None, :], walk.shape))
     leg[:, np.arange(n), np.arange(n)] = np.inf
     return _dual(_chains(first_leg, leg), horizon)
 
@@ -195,15 +194,16 @@ def _apart(a_lo, a_hi, b_lo, b_hi) -> np.ndarray:
     return np.where(b_lo > a_hi, b_lo - a_hi, np.where(b_hi < a_lo, b_hi - a_lo, 0.0))
 
 
-def _leg_prices(model: Model, horizon: int, before: np.ndarray, one: np.ndarray,
-                two: np.ndarray, from_rest: bool) -> np.ndarray:
+def _leg_prices(model: Model, horizon: int, before: np.ndarray | None, one: np.ndarray,
+                two: np.ndarray) -> np.ndarray:
     """min over N_1 + N_2 = N ≤ T of the force two legs in turn (displacements ``one``, ``two``,
     (…, 2)) must cost, + λN, for every λ (Λ, …). ``before``: the leg before them (the carry of
-    the object delivered last), or, ``from_rest``, the hand at rest before them."""
+    the object delivered last), or None: the hand at rest before them."""
     dt, steps = model.dt, np.arange(horizon + 1)
     shape = one.shape[:-1]
     one, two = one.reshape(-1, 2), two.reshape(-1, 2)
-    mode = _modes(np.sign(before).reshape(-1, 2), np.sign(one), np.sign(two), from_rest)
+    mode = _modes(None if before is None else np.sign(before).reshape(-1, 2), np.sign(one),
+                  np.sign(two))
     r1, r2 = _average(one, steps * dt)[..., None], _average(two, steps * dt)[..., None, :]
     peak = np.select([mode[..., None, None] == m for m in (_ONE, _TWO, _BOTH, _EITHER)],
                      [r1, r2, r1 + r2, np.maximum(r1, r2)], 0.0)  # (m, 2, N_1, N_2)
@@ -229,15 +229,14 @@ def _average(move: np.ndarray, time: np.ndarray) -> np.ndarray:
 _NONE, _ONE, _TWO, _BOTH, _EITHER = range(5)
 
 
-def _modes(before: np.ndarray, one: np.ndarray, two: np.ndarray, from_rest: bool
-           ) -> np.ndarray:
-    """Per axis, the signs of the leg before, and of two legs: which of their average speeds
-    start a run of their own (module docstring, "Both axes"). A leg starts a run where the
-    last leg that had to move before it went the other way (or none did, from rest); one
-    whose way is not known (0) neither starts nor ends one, and where the leg before is not
-    known the run is not counted."""
-    last = np.zeros_like(before) if from_rest else before
-    known = np.full(before.shape, from_rest) | (last != 0)
+def _modes(before: np.ndarray | None, one: np.ndarray, two: np.ndarray) -> np.ndarray:
+    """Per axis, the signs of the leg before (None: the hand at rest), and of two legs: which
+    of their average speeds start a run of their own (module docstring, "Both axes"). A leg
+    starts a run where the last leg that had to move before it went the other way (or none
+    did, from rest); one whose way is not known (0) neither starts nor ends one, and where the
+    leg before is not known the run is not counted."""
+    last = np.zeros_like(one) if before is None else before
+    known = (last != 0) | (before is None)
     start1 = (one != 0) & known & (last != one)
     after = np.where(one != 0, one, last)  # the last way before the second leg
     start2 = (two != 0) & (after != two) & ((one != 0) | known)
