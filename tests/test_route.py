@@ -258,6 +258,30 @@ def test_the_bound_over_delivered_sets_is_the_least_over_the_orders(seed) -> Non
                         (i, share)
 
 
+def test_the_axes_share_each_visit_s_step() -> None:
+    """Each axis counted alone may make a visit at a step at which the other cannot yet; every
+    plan makes it at one step on both. With the times shared (``route._times``), a pair of
+    five objects (seed 9, hand 0 delivering objects 2 and 4) needs two steps more than each
+    axis alone says, and that is its exact least horizon: the one-hand program has no plan one
+    step below it and has one at it."""
+    scenario = load_scenario("table1_vd", {"rule": 1, "seed": 9, "delivery": "rest",
+                                           "random_objects": {"count": 5}})
+    objects = [0, 1, 2, 3, 4]
+    model, state = Model.from_scenario(scenario), State.initial(scenario)
+    spec, share = specification(scenario, objects), (2, 4)
+    no_throw = frozenset(objects)
+    alone = route_steps(model, state, 0, share, no_throw, 60)
+    shared = min(o.steps for o in orders(model, state, 0, share, no_throw, 60))
+    assert (alone, shared) == (16, 18)
+    allowed = np.zeros((N_HANDS, len(objects)), bool)
+    allowed[0, list(share)] = True
+    options = SolveOptions(time_limit_s=120.0, mip_rel_gap=1.0, small_trees=True)
+    status = [HorizonProgram(scenario, state, objects, horizon).solve(
+        restricted(spec, share, share), options, allowed=allowed, hands=(0,)).status
+              for horizon in (shared - 1, shared)]
+    assert status[0] is Status.INFEASIBLE and status[1].has_solution
+
+
 class _StopAfter:
     """A ``stopped`` that says yes from its ``polls``-th call on, counting the calls."""
 

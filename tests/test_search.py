@@ -23,7 +23,7 @@ from dualarm_mpc.logic.evaluate import evaluate
 from dualarm_mpc.logic.ltl import Atom
 from dualarm_mpc.logic.parser import parse
 from dualarm_mpc.milp.backends import solve_standard_form
-from dualarm_mpc.milp.horizon import HorizonProgram, solve_options, solve_step
+from dualarm_mpc.milp.horizon import HorizonProgram, StepResult, solve_options, solve_step
 from dualarm_mpc.milp.solver import SolveOptions, Status
 from dualarm_mpc.model.mld import (
     POSITION_TOL,
@@ -46,6 +46,7 @@ from dualarm_mpc.model.spec import (
     with_no_throw,
 )
 from dualarm_mpc.planning.sequential import predict_horizon
+from dualarm_mpc.search import skeleton
 from dualarm_mpc.search.relaxations import AloneKey, HandKey, Request, solve_relaxation
 from dualarm_mpc.search.skeleton import (
     FeasibilityPass,
@@ -557,6 +558,38 @@ def four_objects_seed_5() -> StepProblem:
     s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
     return StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
                                                           rules=rule_formulas(s)))
+
+
+def test_a_whole_task_probes_a_single_object_only_as_a_share_of_a_node_left_open(
+        monkeypatch) -> None:
+    """Past m_o = 3 (``SINGLES_M_O``) a single object is a hand's share only beside the other
+    hand's m_o − 1, which the route mostly rules out, and a hand with a plan for a share
+    delivers each of its objects alone: the whole task's search probes a single only as the
+    share of a node the route leaves open, fewer than when it probes them all at once, and
+    finds the same optimum (four objects, seed 5, at the minimal horizon)."""
+    problem = four_objects_seed_5()
+    objects = set(problem.spec.objects)
+
+    def searched() -> tuple[StepResult, list[HandKey], StepSearch]:
+        singles: list[HandKey] = []
+
+        def counted(programs: StepPrograms, request: Request):
+            if isinstance(request.key, HandKey) and len(request.key.share) == 1:
+                singles.append(request.key)
+            return solve_relaxation(programs, request)
+
+        search = StepSearch.of(StepPrograms(problem, 20, solve_options(problem.scenario)),
+                               solver=counted)
+        return search.run(search.feasible()), singles, search
+
+    res, singles, search = searched()
+    assert all(not search.store.share_ruled_out(
+        1 - k.hand, tuple(sorted(objects - set(k.share)))) for k in singles)
+    monkeypatch.setattr(skeleton, "SINGLES_M_O", len(objects))
+    every, all_singles, _ = searched()
+    assert len(singles) < len(all_singles)
+    assert res.status is every.status is Status.OPTIMAL
+    assert res.cost == pytest.approx(every.cost, rel=1e-6, abs=1e-9)
 
 
 def test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved() -> None:

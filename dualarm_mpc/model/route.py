@@ -40,6 +40,12 @@ their speeds, and their union loses next to nothing (on the built-in and random 
 the orders' bound exactly, tests/test_route.py). m·2^m stages per axis in place of m! routes:
 a hand's ten objects in 21 s where the orders never finished; every count polls ``stopped``.
 
+Counted alone, each axis makes each visit at its own earliest step. Where a hand's share is
+split by order (``orders``), the axes share them: every plan makes a visit at one step on both
+axes, so each axis is counted again with the visit allowed only from the later axis's earliest
+step, until nothing changes (``_times``). Over delivered sets the orders' ways in are merged,
+so there each axis stays alone.
+
 Run from any state of the hand, the same propagation counts the steps from an object's first
 grab to the end of its order's route (``Order.after``), so a plan of horizon T grabs it by
 T − after: the latest first grab.
@@ -207,12 +213,13 @@ class _Stage:
     """The (position, velocity) set of one axis after some visits, step by step (``sets[k]``)
     as far as it has been asked; the first step at which it is not empty, and the first at
     which it holds a state at rest. It is entered from each of its ``entries`` (a stage before
-    it, and the visit that leaves that stage for this one), or at ``start`` without any. Routes
-    that begin alike share their stages (an order's pairs and triples start with its single
-    objects), and the horizons of a sequential step ask the same, a little further."""
+    it, the visit that leaves that stage for this one, and the first step at which that visit
+    may be made), or at ``start`` without any. Routes that begin alike share their stages (an
+    order's pairs and triples start with its single objects), and the horizons of a sequential
+    step ask the same, a little further."""
 
     def __init__(self, axis: Axis, start: tuple[float, float] | None,
-                 entries: tuple[tuple[_Stage, Visit], ...]) -> None:
+                 entries: tuple[tuple[_Stage, Visit, int], ...]) -> None:
         dt, v_max, u_max, lo, hi = axis
         if entries and isinstance(entries[0][1], _Grab):  # the object, in the range ⊕ its half
             half = entries[0][1].half
@@ -234,8 +241,8 @@ class _Stage:
             reached = _step(self.axis, self.sets[-1])
             if self.entries:  # or makes a visit at step j
                 reached = _union([reached] + [_enter(visit, _slab(parent.at(j), *s))
-                                              for parent, visit in self.entries
-                                              for s in _slabs(visit)])
+                                              for parent, visit, earliest in self.entries
+                                              if j >= earliest for s in _slabs(visit)])
             self.sets.append(reached)
             if reached and self.first is None:
                 self.first = j
@@ -268,13 +275,17 @@ def _kept() -> None:
         _STAGES.clear()
 
 
-def _stages(axis: Axis, start: tuple[float, float] | None,
-            visits: tuple[Visit, ...]) -> list[_Stage]:
+def _stages(axis: Axis, start: tuple[float, float] | None, visits: tuple[Visit, ...],
+            earliest: tuple[int, ...] | None = None) -> list[_Stage]:
+    """The stages of a route: after none of ``visits``, after the first, and so on; visit m
+    made at step ``earliest[m]`` or later (by default at any step ≥ 1)."""
+    earliest = earliest or (1,) * len(visits)
     stages: list[_Stage] = []
     for m in range(len(visits) + 1):
-        key = (axis, start, visits[:m])
+        key = (axis, start, visits[:m], earliest[:m])
         if key not in _STAGES:
-            _STAGES[key] = _Stage(axis, start, ((stages[-1], visits[m - 1]),) if m else ())
+            entry = ((stages[-1], visits[m - 1], earliest[m - 1]),) if m else ()
+            _STAGES[key] = _Stage(axis, start, entry)
         stages.append(_STAGES[key])
     return stages
 
@@ -293,23 +304,25 @@ def _delivered(axis: Axis, start: tuple[float, float] | None,
         rest = deliveries - {last}
         held = (axis, start, rest, n, grab)
         if held not in _STAGES:
-            before = tuple((_delivered(axis, start, rest, d), grab)
+            before = tuple((_delivered(axis, start, rest, d), grab, 1)
                            for d in sorted(rest, key=lambda d: d[0]))
-            _STAGES[held] = _Stage(axis, start, before or ((_stages(axis, start, ())[0], grab),))
-        _STAGES[key] = _Stage(axis, start, ((_STAGES[held], release),))
+            _STAGES[held] = _Stage(axis, start,
+                                   before or ((_stages(axis, start, ())[0], grab, 1),))
+        _STAGES[key] = _Stage(axis, start, ((_STAGES[held], release, 1),))
     return _STAGES[key]
 
 
 def axis_times(axis: Axis, start: tuple[float, float] | None, visits: tuple[Visit, ...],
-               cap: int) -> tuple[int, ...]:
+               cap: int, earliest: tuple[int, ...] | None = None) -> tuple[int, ...]:
     """The earliest step of each visit when one axis of a hand starting at ``start``
     (position, velocity; None: any state within the bounds) makes ``visits`` in order, each at
-    a step ≥ 1 (several may share one), and last the fewest steps T ≤ ``cap`` after which it
-    is also at rest; ``cap + 1`` for what it cannot reach. A visit is a union of slabs on the
-    hand, or a change of frame (:data:`Visit`). Pure, so kept and resumed."""
+    a step ≥ 1 (several may share one) and visit m at ``earliest[m]`` or later, and last the
+    fewest steps T ≤ ``cap`` after which it is also at rest; ``cap + 1`` for what it cannot
+    reach. A visit is a union of slabs on the hand, or a change of frame (:data:`Visit`).
+    Pure, so kept and resumed."""
     with _STAGES_LOCK:
         _kept()
-        stages = _stages(axis, start, visits)
+        stages = _stages(axis, start, visits, earliest)
         stages[-1].count(cap, _never)
         times = [stage.first for stage in stages[1:]] + [stages[-1].rest]
         return tuple(cap + 1 if t is None or t > cap else t for t in times)
@@ -385,18 +398,34 @@ def orders(model: Model, state: State, hand: int, objects: tuple[int, ...],
     """Every order in which ``hand`` can deliver ``objects`` (all under no-throw, at rest, not
     held, not in their goal) within ``cap`` steps, the shortest route first. Under no-throw a
     plan delivers them one after another, so every plan of the hand follows one of these
-    orders and makes each visit no earlier than its order's route allows."""
+    orders and makes each visit no earlier than its order's route allows (:func:`_times`)."""
     found = []
     for order in itertools.permutations(objects):
-        times = np.zeros(2 * len(order) + 1, int)
-        for a in range(2):
-            times = np.maximum(times, axis_times(*_route(model, state, hand, order, a, no_throw),
-                                                 cap))
+        times = _times(model, state, hand, order, no_throw, cap)
         if times[-1] <= cap:
             found.append(Order(hand, order, tuple(int(t) for t in times[0:-1:2]),
                                tuple(int(t) for t in times[1:-1:2]), int(times[-1]),
                                _after(model, state, hand, order, no_throw, cap)))
     return sorted(found, key=lambda o: o.steps)
+
+
+def _times(model: Model, state: State, hand: int, order: tuple[int, ...],
+           no_throw: frozenset[int], cap: int) -> tuple[int, ...]:
+    """The earliest step of each visit of ``order`` and the fewest steps of its route, the two
+    axes' visit times shared. Each axis counted alone may make a visit at a step at which the
+    other cannot yet; every plan makes visit m at one step on both axes, no earlier than the
+    later axis's earliest E_m. So each axis is propagated again with visit m allowed from E_m
+    on — a subset of what it kept, still holding every plan's states — which may delay the
+    visits after it, until nothing changes (two to four rounds; a pair's route a step or two
+    longer on a fifth to nearly half of a five-object task's pairs, the exact least horizon
+    where checked: bench/search-experiments.md, "Orders")."""
+    routes = [_route(model, state, hand, order, a, no_throw) for a in range(2)]
+    earliest = (1,) * (2 * len(order))
+    while True:
+        times = tuple(map(max, *(axis_times(*route, cap, earliest) for route in routes)))
+        if times[:-1] == earliest or times[-1] > cap:
+            return times
+        earliest = times[:-1]
 
 
 def _after(model: Model, state: State, hand: int, order: tuple[int, ...],

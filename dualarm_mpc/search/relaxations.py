@@ -204,6 +204,11 @@ class RelaxationStore:
         self.fetch([(key, exact)], slice_s=slice_s)
         return self._results[key]
 
+    def delivered_alone(self, j: int) -> bool:
+        """Whether a hand is known to deliver object j alone: a share holding j has a plan."""
+        return any(isinstance(k, HandKey) and j in k.share and r.status.has_solution
+                   for k, r in list(self._results.items()))
+
     def with_plans(self) -> dict[Key, StepResult]:
         """The relaxations solved so far that have a plan (``below`` of the next horizon)."""
         return {k: r for k, r in self._results.items() if r.status.has_solution}

@@ -69,6 +69,10 @@ BATCH = 2  # nodes evaluated at once in the best-first loop
 # time left: one program that runs long (a rule-2 pair at a horizon past its first plan) then
 # no longer leaves the horizon undecided while other nodes would have a plan.
 FIRST_SLICE = 1 / 16
+# Up to this m_o a node's smaller share is a single object often enough that the pass probes
+# every single at once; past it (a whole task) a single is a share only beside a share of
+# m_o − 1, which the route mostly rules out, and its probe, seconds at a long horizon, is waste.
+SINGLES_M_O = 3
 
 
 class Skeleton:
@@ -131,9 +135,11 @@ class Skeleton:
 
     def needed(self, slice_s: float = np.inf) -> set[int]:
         """The objects neither hand can deliver alone but both together can (decided by
-        probes, each within ``slice_s``)."""
+        probes, each within ``slice_s``). A hand that has a plan for a share delivers each of
+        its objects alone (c_i(S) only grows with S): those objects need no probe, and after
+        a plan of a whole task, none does."""
         p, store = self.programs, self.store
-        alone = list(p.spec.objects)
+        alone = [j for j in p.spec.objects if not store.delivered_alone(j)]
         for i in range(N_HANDS):  # an object one hand delivers needs no second probe
             store.fetch(((HandKey(i, (j,)), False) for j in alone), slice_s=slice_s)
             alone = [j for j in alone if store.status(HandKey(i, (j,))) is Status.INFEASIBLE]
@@ -229,8 +235,9 @@ class FeasibilityPass:
         """One round of :meth:`decide`, each program within ``slice_s``."""
         undecided = False
         if not relays:
-            may_relay = self.skeleton.handover == "auto" and bool(
-                self.skeleton.relayable() - self.skeleton.needed(slice_s))
+            relayable = self.skeleton.relayable()  # none under rule 1: no probe for needed
+            may_relay = self.skeleton.handover == "auto" and bool(relayable) and bool(
+                relayable - self.skeleton.needed(slice_s))
             single = self._probe(slice_s, stop_undecided=may_relay)
             if single.status is Status.FEASIBLE:
                 return single
@@ -253,7 +260,8 @@ class FeasibilityPass:
                 break
             if node in self._ruled:
                 continue
-            if n == 1:  # past the first guess, most singles will be needed: all at once
+            if n == 1 and self.programs.spec.m_o <= SINGLES_M_O:
+                # past the first guess, most singles will be needed: all at once
                 self.store.fetch(((HandKey(i, (j,)), False) for j in self.programs.spec.objects
                                   for i in range(N_HANDS)), slice_s=slice_s)
             # and so will the larger shares of the nodes after it: a few at once

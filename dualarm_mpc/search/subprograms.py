@@ -377,14 +377,23 @@ class StepPrograms:
         if (i, share) not in self._orders:
             local = tuple(self.local[j] for j in share)
             split = share and len(share) <= SPLIT_MAX_OBJECTS and set(local) <= self.no_throw \
-                and self.route(i, share)
+                and self._route(i, share)
             self._orders[i, share] = orders(self.model, self.program.local_state, i, local,
                                             self.no_throw, self.horizon) if split else None
         return self._orders[i, share]
 
     def route(self, i: int, share: tuple[int, ...]) -> int:
         """The route bound (``route.py``), counted up to the horizon: more steps than the
-        horizon and hand i cannot deliver ``share`` in it, whatever the rest of the plan does."""
+        horizon and hand i cannot deliver ``share`` in it, whatever the rest of the plan does.
+        Where the share is split by order, none of them fitting the horizon (the axes' visit
+        times shared, ``route._times``) says so too, often where the bound alone does not."""
+        steps = self._route(i, share)
+        if steps <= self.horizon and self.orders(i, share) == []:
+            return self.horizon + 1
+        return steps
+
+    def _route(self, i: int, share: tuple[int, ...]) -> int:
+        """The route bound over delivered sets (``route.route_steps``), each axis alone."""
         return route_steps(self.model, self.program.local_state, i,
                            tuple(self.local[j] for j in share), self.no_throw, self.horizon,
                            self.stopped)
