@@ -527,16 +527,21 @@ def test_an_incumbent_no_object_changes_hands_in_decides_its_horizon(monkeypatch
 
 
 
+def four_objects(seed: int) -> StepProblem:
+    """The whole task of four objects, rule 1 (seed 1: minimal horizon T = 15; seed 5: 20)."""
+    s = load_scenario("table1_vd", {"seed": seed, "random_objects": {"count": 4}, "rule": 1,
+                                    "delivery": "rest"})
+    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
+    return StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
+                                                          rules=rule_formulas(s)))
+
+
 def test_a_share_its_route_rules_out_rules_its_node_out_unsolved() -> None:
     """In a whole task most nodes give one hand more objects than its route allows: the
     feasibility pass rules such a node out with no program solved, the other hand's share
     included (its probe would be wasted)."""
-    s = load_scenario("table1_vd", {"seed": 1, "random_objects": {"count": 4}, "rule": 1,
-                                    "delivery": "rest"})
-    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
-    problem = StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
-                                                             rules=rule_formulas(s)))
-    programs = StepPrograms(problem, predict_horizon(problem), solve_options(s))
+    problem = four_objects(1)
+    programs = StepPrograms(problem, predict_horizon(problem), solve_options(problem.scenario))
     search = StepSearch.of(programs)
     store = search.store
 
@@ -551,14 +556,6 @@ def test_a_share_its_route_rules_out_rules_its_node_out_unsolved() -> None:
     assert store.solved == 0 and programs.stats.programs == 0
 
 
-def four_objects_seed_5() -> StepProblem:
-    """The whole task of four objects, seed 5, rule 1 (minimal horizon T = 20)."""
-    s = load_scenario("table1_vd", {"seed": 5, "random_objects": {"count": 4}, "rule": 1,
-                                    "delivery": "rest"})
-    s = dataclasses.replace(s, task=dataclasses.replace(s.task, m_o=4, n_o=4))
-    return StepProblem(s, State.initial(s), specification(s, [0, 1, 2, 3],
-                                                          rules=rule_formulas(s)))
-
 
 def test_a_whole_task_probes_a_single_object_only_as_a_share_of_a_node_left_open(
         monkeypatch) -> None:
@@ -566,8 +563,8 @@ def test_a_whole_task_probes_a_single_object_only_as_a_share_of_a_node_left_open
     hand's m_o − 1, which the route mostly rules out, and a hand with a plan for a share
     delivers each of its objects alone: the whole task's search probes a single only as the
     share of a node the route leaves open, fewer than when it probes them all at once, and
-    finds the same optimum (four objects, seed 5, at the minimal horizon)."""
-    problem = four_objects_seed_5()
+    finds the same optimum (four objects, seed 1, at the minimal horizon T = 15)."""
+    problem = four_objects(1)
     objects = set(problem.spec.objects)
 
     def searched() -> tuple[StepResult, list[HandKey], StepSearch]:
@@ -578,7 +575,7 @@ def test_a_whole_task_probes_a_single_object_only_as_a_share_of_a_node_left_open
                 singles.append(request.key)
             return solve_relaxation(programs, request)
 
-        search = StepSearch.of(StepPrograms(problem, 20, solve_options(problem.scenario)),
+        search = StepSearch.of(StepPrograms(problem, 15, solve_options(problem.scenario)),
                                solver=counted)
         return search.run(search.feasible()), singles, search
 
@@ -598,7 +595,7 @@ def test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved()
     reaches the best plan so far is closed without its joint solve, and the node's optimum is
     still the best of every part's, each solved jointly in full. Four objects, seed 5, at the
     whole task's minimal horizon: a pair for each hand, four parts."""
-    problem = four_objects_seed_5()
+    problem = four_objects(5)
     programs = StepPrograms(problem, 20, solve_options(problem.scenario))
     node = Node((0, 1, 2, 3), (0, 1, 1, 0))
     floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
@@ -625,7 +622,7 @@ def test_a_spread_programs_parts_run_in_waves_each_cut_off_by_those_before() -> 
     """A node evaluated alone spreads its joint program's parts over the workers, ``WAVE`` at a
     time: the first wave against the incumbent (none here), each later part against the best
     plan of the waves before, and the optimum is the one solved part after part."""
-    problem = four_objects_seed_5()
+    problem = four_objects(5)
     node = Node((0, 1, 2, 3), (0, 0, 1, 1))
     found = []
     for pool in (None, ThreadPoolExecutor(2)):
@@ -652,7 +649,7 @@ def test_a_wave_holds_only_parts_its_hands_orders_leave_below_the_best() -> None
     solved jointly, and the optimum is the node's (the node of
     ``test_a_joint_part_its_hands_orders_bound_above_the_best_is_closed_unsolved``, against an
     incumbent just above its optimum)."""
-    problem = four_objects_seed_5()
+    problem = four_objects(5)
     node = Node((0, 1, 2, 3), (0, 1, 1, 0))
     alone = StepPrograms(problem, 20, solve_options(problem.scenario))
     floor = np.array([alone.hand(i, node.share(i)).cost for i in range(2)])
@@ -681,7 +678,7 @@ def test_a_part_bounded_within_the_gap_below_the_best_is_closed_with_its_own_bou
     orders bound it that close below the best plan is closed without its joint solve (five
     objects, seed 2: 24 s proving 3.3302 against 3.3303), and its bound is its own, not the
     cutoff's, so the step's gap stays a proof."""
-    problem = four_objects_seed_5()
+    problem = four_objects(5)
     node = Node((0, 1, 2, 3), (0, 1, 1, 0))
     programs = StepPrograms(problem, 20, solve_options(problem.scenario))
     floor = np.array([programs.hand(i, node.share(i)).cost for i in range(2)])
