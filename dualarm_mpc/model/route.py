@@ -398,7 +398,7 @@ def orders(model: Model, state: State, hand: int, objects: tuple[int, ...],
     """Every order in which ``hand`` can deliver ``objects`` (all under no-throw, at rest, not
     held, not in their goal) within ``cap`` steps, the shortest route first. Under no-throw a
     plan delivers them one after another, so every plan of the hand follows one of these
-    orders and makes each visit no earlier than its order's route allows (:func:`_times`)."""
+    orders and makes each visit no earlier than its order's route allows (``_times``)."""
     found = []
     for order in itertools.permutations(objects):
         times = _times(model, state, hand, order, no_throw, cap)

@@ -10,6 +10,10 @@ clock: the horizon's deadline, the feasibility pass's time slice where it gives 
 options' stop request and work budget. :func:`satisfies` is the check every plan put together
 from parts passes: re-simulation and direct LTL evaluation (``evaluate.py``, which shares no code
 with the encoder).
+
+Why one module of this length: it is one class and the few functions its programs' results go
+through; its parts (the splits by order, the order bounds, the routes, the clock) share one
+horizon's state and locks, which a split would pass between modules.
 """
 
 from __future__ import annotations
@@ -388,9 +392,7 @@ class StepPrograms:
         Where the share is split by order, none of them fitting the horizon (the axes' visit
         times shared, ``route._times``) says so too, often where the bound alone does not."""
         steps = self._route(i, share)
-        if steps <= self.horizon and self.orders(i, share) == []:
-            return self.horizon + 1
-        return steps
+        return self.horizon + 1 if steps <= self.horizon and self.orders(i, share) == [] else steps
 
     def _route(self, i: int, share: tuple[int, ...]) -> int:
         """The route bound over delivered sets (``route.route_steps``), each axis alone."""
