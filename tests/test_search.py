@@ -556,7 +556,6 @@ def test_a_share_its_route_rules_out_rules_its_node_out_unsolved() -> None:
     assert store.solved == 0 and programs.stats.programs == 0
 
 
-
 def test_a_whole_task_probes_a_single_object_only_as_a_share_of_a_node_left_open(
         monkeypatch) -> None:
     """Past m_o = 3 (``SINGLES_M_O``) a single object is a hand's share only beside the other
