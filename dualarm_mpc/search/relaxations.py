@@ -206,8 +206,7 @@ class RelaxationStore:
 
     def delivered_alone(self, j: int) -> bool:
         """Whether a hand is known to deliver object j alone: a share holding j has a plan."""
-        return any(isinstance(k, HandKey) and j in k.share and r.status.has_solution
-                   for k, r in list(self._results.items()))
+        return any(isinstance(k, HandKey) and j in k.share for k in self.with_plans())
 
     def with_plans(self) -> dict[Key, StepResult]:
         """The relaxations solved so far that have a plan (``below`` of the next horizon)."""
