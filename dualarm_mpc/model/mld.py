@@ -137,6 +137,11 @@ class State:
     def last(trajectory: Trajectory) -> State:
         return State.at(trajectory, -1)
 
+    def is_still(self) -> bool:
+        """Nothing held, and every hand and object at rest."""
+        return not self.grasp.any() and at_rest(self.hand_vel).all() and \
+            at_rest(self.object_vel).all()
+
     @staticmethod
     def size(n_objects: int) -> int:
         """The length of :meth:`vector`: 8 + 6N."""

@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dualarm_mpc.model.mld import POSITION_TOL, Model, State, at_rest, in_goal
+from dualarm_mpc.model.mld import POSITION_TOL, Model, State, in_goal
 
 # 2^n subsets times n² per Held–Karp stage: twelve objects take a few seconds.
 MAX_OBJECTS = 12
@@ -67,7 +67,7 @@ def task_bound(model: Model, state: State, objects: list[int], horizon: int) -> 
     :func:`hand_bounds`. 0 where it does not apply: the state not at rest, an object held, or
     more than ``MAX_OBJECTS``."""
     todo = [j for j in objects if not in_goal(state.object_pos[j], model.goals[j])]
-    if not todo or len(todo) > MAX_OBJECTS or not _at_rest(state):
+    if not todo or len(todo) > MAX_OBJECTS or not state.is_still():
         return 0.0
     full = (1 << len(todo)) - 1
     shares = np.arange(full + 1)
@@ -91,11 +91,6 @@ def hand_bounds(model: Model, state: State, hand: int, objects: list[int],
             if legs is not None:
                 bound += _held_karp(model, horizon, *legs)
     return np.maximum(bound, _event_bound(model, state, hand, objects, horizon))
-
-
-def _at_rest(state: State) -> bool:
-    return not state.grasp.any() and at_rest(state.hand_vel).all() and \
-        at_rest(state.object_vel).all()
 
 
 def _legs(model: Model, state: State, hand: int, objects: list[int], axis: int,

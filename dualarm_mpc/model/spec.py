@@ -129,10 +129,19 @@ class Specification:
     def released_only_in_goal(self) -> frozenset[int]:
         """The objects (scenario indices) for which no-throw (18) is in force for both arms:
         every release puts them in their goal (the route bound, ``route.py``, relies on it)."""
+        return self.kept_by("no-throw (18)")
+
+    def kept_by(self, rule_name: str) -> frozenset[int]:
+        """The objects (scenario indices) j of the step for which the paper's rule ``rule_name``
+        (a key of ``RULE_TEXT``) is in force for both arms, each other object of the step in
+        its placeholder l: no-swap (20) for j, say, keeps a hand that lets go of j from taking
+        any other object the next step (the band bound, ``band.py``, relies on it)."""
         have = {inst for _, f in self.rules for inst in instances(f)}
-        rule = parse(RULE_TEXT["no-throw (18)"])
-        return frozenset(j for j in self.objects
-                         if set(instances(expand(rule, [j + 1]))) <= have)
+        rule = parse(RULE_TEXT[rule_name])
+        # TRUE: no instance at all (no-swap for the step's only object), which holds already
+        return frozenset(j for j in self.objects if set(instances(expand(
+            substitute(rule, {"j": j + 1}), [k + 1 for k in self.objects if k != j]))) <=
+            have | {TRUE})
 
     def monotone_in_horizon(self) -> bool:
         """Whether a plan of horizon T stays one of horizon T + 1 when the robot idles one more

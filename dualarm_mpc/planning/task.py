@@ -12,7 +12,7 @@ import numpy as np
 
 from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import Interrupt, SolveOptions, Status
-from dualarm_mpc.model import motion
+from dualarm_mpc.model import band, motion
 from dualarm_mpc.model.mld import Model, State
 from dualarm_mpc.model.plan import Plan, Segment
 from dualarm_mpc.model.scenario import MAX_STEP_DELIVERIES, Scenario, ScenarioError
@@ -189,18 +189,24 @@ def _incumbent(first: Plan) -> StepResult:
 
 def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
     """The whole task's plan with its step's bound raised to the motion bound
-    (``model/motion.py``) at its horizon where that is higher: no plan of that horizon or
-    shorter costs less, so neither does the task's optimum, whose horizon is at most this one.
-    Unchanged where the bound does not apply (an object that may be thrown, a second step of
-    rests under delivery ``reach``)."""
+    (``model/motion.py``) at its horizon where that is higher, or where an object may be
+    thrown, to the band bound (``model/band.py``): no plan of that horizon or shorter costs
+    less, so neither does the task's optimum, whose horizon is at most this one. Unchanged
+    where neither applies (an object that may be thrown and swapped for another the step
+    after, a second step of rests under delivery ``reach``)."""
     if result.partial or len(result.segments) != 1:
         return result
     (step,) = result.segments
     whole = _whole_step(scenario)
-    objects = list(whole.spec.objects)
-    if whole.spec.released_only_in_goal() != frozenset(objects):
+    objects, spec = list(whole.spec.objects), whole.spec
+    model = Model.from_scenario(scenario)
+    no_throw = spec.released_only_in_goal()
+    if no_throw == frozenset(objects):
+        bound = motion.task_bound(model, whole.state, objects, step.horizon)
+    elif no_throw | spec.kept_by("no-swap (20)") == frozenset(objects):
+        bound = band.task_bound(model, whole.state, objects, step.horizon)
+    else:
         return result
-    bound = motion.task_bound(Model.from_scenario(scenario), whole.state, objects, step.horizon)
     if bound <= step.bound:
         return result
     gap = max(0.0, (step.cost - bound) / step.cost) if step.cost > 0 else 0.0
