@@ -46,7 +46,8 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.sparse import coo_matrix
 
-from dualarm_mpc.model.mld import N_HANDS, POSITION_TOL, Model, State, in_goal
+from dualarm_mpc.model.mld import N_HANDS, POSITION_TOL, Model, State, at_rest, in_goal
+from dualarm_mpc.model.spec import Specification
 
 # Each run's least peak P(a, N) is bounded from below by its tangents at these many peaks.
 TANGENTS = 24
@@ -55,13 +56,24 @@ TANGENTS = 24
 BAND_ENDS = 7
 
 
-def task_bound(model: Model, state: State, objects: list[int], horizon: int) -> float:
+def holds(spec: Specification) -> bool:
+    """Whether the bound holds under ``spec``: for each of its objects, no-throw (18) or no-swap
+    (20) in force for both arms."""
+    return spec.released_only_in_goal() | spec.kept_by("no-swap (20)") == frozenset(spec.objects)
+
+
+def task_bound(model: Model, state: State, objects: list[int], horizon: int,
+               m_o: int | None = None) -> float:
     """A lower bound of the cost (17) of every plan of ``horizon`` steps or fewer that delivers
-    every one of ``objects`` (model indices) from ``state``, for a specification that forbids a
-    swap (20) after each release outside the goal. 0 where it does not apply: the state not at
-    rest, or an object held."""
+    every one of ``objects`` (model indices) from ``state``, or any ``m_o`` of them (φ_task,
+    eq. 13), for a specification that forbids a swap (20) after each release outside the goal.
+    0 where it does not apply: a hand or an object moving (an object held at rest is one more
+    grasp; a hand's runs start from rest, and only a hand moves an object)."""
     todo = [j for j in objects if not in_goal(state.object_pos[j], model.goals[j])]
-    if not todo or horizon < 2 or not state.is_still():
+    # the objects in their goals already may be among the m_o: the fewest left to deliver
+    need = len(todo) if m_o is None else m_o - (len(objects) - len(todo))
+    if need <= 0 or horizon < 2 or not (at_rest(state.hand_vel).all() and
+                                        at_rest(state.object_vel).all()):
         return 0.0
     total = 0.0
     for axis in range(2):
@@ -70,7 +82,7 @@ def task_bound(model: Model, state: State, objects: list[int], horizon: int) -> 
         far = np.array([model.goals[j].hi[axis] for j in todo]) + POSITION_TOL
         ends = np.unique(np.quantile(np.r_[places, near, far], np.linspace(0, 1, BAND_ENDS)))
         program = _AxisProgram(model, state, todo, horizon, axis)
-        bounds = [program.bound(lo, hi, places, near, far)
+        bounds = [program.bound(lo, hi, places, near, far, need)
                   for lo, hi in itertools.combinations(ends, 2)]
         # A band no plan within the horizon meets would mean no plan at all, which the route
         # bound and the search decide, not this one: it says nothing then.
@@ -149,11 +161,13 @@ class _AxisProgram:
         self.cost = cost.ravel()
 
     def bound(self, lo: float, hi: float, places: np.ndarray, near: np.ndarray,
-              far: np.ndarray) -> float:
-        """The least cost of both hands on this axis for the band [lo, hi] (inf: none within the
-        horizon)."""
-        demand = (np.clip(np.minimum(near, hi) - np.maximum(places, lo), 0, None).sum(),
-                  np.clip(np.minimum(places, hi) - np.maximum(far, lo), 0, None).sum())
+              far: np.ndarray, need: int) -> float:
+        """The least cost of both hands on this axis for the band [lo, hi] and any ``need`` of
+        the objects (inf: none within the horizon)."""
+        # the cost grows with both demands, so each is the least over the choices of objects
+        demand = [np.sort(np.clip(rise, 0, None))[:need].sum() for rise in
+                  (np.minimum(near, hi) - np.maximum(places, lo),
+                   np.minimum(places, hi) - np.maximum(far, lo))]
         if max(demand) <= 0:
             return 0.0
         ws = self.model.workspace
@@ -171,4 +185,4 @@ class _AxisProgram:
         return lp.fun if lp.status == 0 else np.inf if lp.status == 2 else 0.0
 
 
-__all__ = ["task_bound"]
+__all__ = ["holds", "task_bound"]

@@ -21,6 +21,7 @@ import numpy as np
 
 from dualarm_mpc.milp.horizon import HorizonProgram, StepResult, solve_options, solve_step
 from dualarm_mpc.milp.solver import SolveOptions, Status
+from dualarm_mpc.model import band
 from dualarm_mpc.model.mld import Model, Rect, State, delivered_objects, in_goal, reachability
 from dualarm_mpc.model.plan import Plan, Segment, Trajectory
 from dualarm_mpc.model.route import horizon_bound
@@ -197,18 +198,34 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
             if kept is not None:
                 kept.witnesses[key] = (found, time.perf_counter() - t0, witness_stats.record())
         if quick and found is not None:
-            return (dataclasses.replace(as_step(problem, found, options),
+            return (dataclasses.replace(band_bounded(problem, as_step(problem, found, options)),
                                         search_stats=stats.record()),
                     time.perf_counter() - t0)
     if found is None:
         res = first_plan(problem, options, tried, None if kept is None else kept.known.get(key))
     else:
         res = below_witness(problem, found, options, tried)
-    res = dataclasses.replace(res, search_stats=stats.record())
+    res = dataclasses.replace(band_bounded(problem, res), search_stats=stats.record())
     total = time.perf_counter() - t0
     if kept is not None and quick:
         kept.steps[key] = (res, total)
     return res, total
+
+
+def band_bounded(problem: StepProblem, res: StepResult) -> StepResult:
+    """``res`` with its bound raised to the band bound (``model/band.py``) at its horizon where
+    an object may be thrown and that is higher: no plan of the step within that horizon costs
+    less."""
+    spec = problem.spec
+    objects = list(spec.objects)
+    if res.gap <= 0 or spec.released_only_in_goal() == set(objects) or not band.holds(spec):
+        return res
+    model = Model.from_scenario(problem.scenario, objects)
+    bound = band.task_bound(model, problem.state.select(objects), list(range(len(objects))),
+                            res.horizon, spec.m_o)
+    if bound <= res.bound:
+        return res
+    return dataclasses.replace(res, bound=bound, gap=max(0.0, (res.cost - bound) / res.cost))
 
 
 def as_step(problem: StepProblem, found: StepResult, options: SolveOptions | None) -> StepResult:

@@ -200,10 +200,9 @@ def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
     whole = _whole_step(scenario)
     objects, spec = list(whole.spec.objects), whole.spec
     model = Model.from_scenario(scenario)
-    no_throw = spec.released_only_in_goal()
-    if no_throw == frozenset(objects):
+    if spec.released_only_in_goal() == frozenset(objects):
         bound = motion.task_bound(model, whole.state, objects, step.horizon)
-    elif no_throw | spec.kept_by("no-swap (20)") == frozenset(objects):
+    elif band.holds(spec):
         bound = band.task_bound(model, whole.state, objects, step.horizon)
     else:
         return result
