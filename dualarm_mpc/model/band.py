@@ -76,13 +76,13 @@ def task_bound(model: Model, state: State, objects: list[int], horizon: int,
                                         at_rest(state.object_vel).all()):
         return 0.0
     total = 0.0
+    program = _Program(model, state, todo, horizon)
     for axis in range(2):
         places = state.object_pos[todo, axis]
         near = np.array([model.goals[j].lo[axis] for j in todo]) - POSITION_TOL
         far = np.array([model.goals[j].hi[axis] for j in todo]) + POSITION_TOL
         ends = np.unique(np.quantile(np.r_[places, near, far], np.linspace(0, 1, BAND_ENDS)))
-        program = _AxisProgram(model, state, todo, horizon, axis)
-        bounds = [program.bound(lo, hi, places, near, far, need)
+        bounds = [program.bound(axis, lo, hi, places, near, far, need)
                   for lo, hi in itertools.combinations(ends, 2)]
         # A band no plan within the horizon meets would mean no plan at all, which the route
         # bound and the search decide, not this one: it says nothing then.
@@ -90,15 +90,14 @@ def task_bound(model: Model, state: State, objects: list[int], horizon: int,
     return total * (1 - 1e-6)
 
 
-class _AxisProgram:
-    """The linear program of one axis (module docstring), built once: a band changes only its
-    width's caps and the right-hand sides."""
+class _Program:
+    """The linear program of one axis (module docstring), built once for both: an axis and a
+    band change only the width's caps and the right-hand sides."""
 
-    def __init__(self, model: Model, state: State, objects: list[int], horizon: int,
-                 axis: int) -> None:
-        self.model, self.axis, self.steps = model, axis, horizon - 1
+    def __init__(self, model: Model, state: State, objects: list[int], horizon: int) -> None:
+        self.model, self.steps = model, horizon - 1
         self.half = float(model.grasp_half[objects].max()) + POSITION_TOL
-        self.start = state.hand_pos[:, axis]
+        self.start = state.hand_pos  # (hand, axis)
         dt, T1 = model.dt, self.steps
         n = np.arange(1, T1 + 1)
         # the speed a run of N steps can have at its k-th step, from rest and back (|u| ≤ u_max)
@@ -160,9 +159,9 @@ class _AxisProgram:
         cost[:, :, 2] = 2 / dt
         self.cost = cost.ravel()
 
-    def bound(self, lo: float, hi: float, places: np.ndarray, near: np.ndarray,
+    def bound(self, axis: int, lo: float, hi: float, places: np.ndarray, near: np.ndarray,
               far: np.ndarray, need: int) -> float:
-        """The least cost of both hands on this axis for the band [lo, hi] and any ``need`` of
+        """The least cost of both hands on ``axis`` for the band [lo, hi] and any ``need`` of
         the objects (inf: none within the horizon)."""
         # the cost grows with both demands, so each is the least over the choices of objects
         demand = [np.sort(np.clip(rise, 0, None))[:need].sum() for rise in
@@ -171,13 +170,13 @@ class _AxisProgram:
         if max(demand) <= 0:
             return 0.0
         ws = self.model.workspace
-        b_hi = min(hi + self.half, ws.hi[self.axis])
-        b_lo = min(max(lo - self.half, ws.lo[self.axis]), b_hi)  # empty past the hand range
+        b_hi = min(hi + self.half, ws.hi[axis])
+        b_lo = min(max(lo - self.half, ws.lo[axis]), b_hi)  # empty past the hand range
         vals = self.vals.copy()
         vals[self.caps] = np.maximum(-(b_hi - b_lo), vals[self.caps])
         rhs = np.zeros(self.n_rows)
         for hand in range(N_HANDS):
-            z0 = np.clip(self.start[hand], b_lo, b_hi)
+            z0 = np.clip(self.start[hand, axis], b_lo, b_hi)
             rhs[5 * hand: 5 * hand + 5] = [self.steps, 1.0, 1.0, b_hi - z0, z0 - b_lo]
         rhs[list(self.demand_rows)] = [-demand[0], -demand[1]]
         matrix = coo_matrix((vals, (self.rows, self.cols)), shape=(self.n_rows, self.cost.size))

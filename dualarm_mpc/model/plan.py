@@ -16,6 +16,11 @@ import numpy as np
 from dualarm_mpc.base import outputs
 
 
+def relative_gap(cost: float, bound: float) -> float:
+    """(cost − bound) / cost, a certificate's gap: 0 for a cost of 0."""
+    return max(0.0, (cost - bound) / cost) if cost > 0 else 0.0
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """States k = 0..K, inputs k = 0..K-1, of the MLD system (eqs. 1, 8)."""
@@ -216,8 +221,7 @@ class Plan:
     @property
     def gap(self) -> float:
         """(total cost − total bound) / total cost: 0 where every step is proven optimal."""
-        cost = self.total_cost
-        return max(0.0, (cost - self.total_bound) / cost) if cost > 0 else 0.0
+        return relative_gap(self.total_cost, self.total_bound)
 
     @property
     def horizon_proven_minimal(self) -> bool:

@@ -23,7 +23,7 @@ from dualarm_mpc.milp.horizon import HorizonProgram, StepResult, solve_options, 
 from dualarm_mpc.milp.solver import SolveOptions, Status
 from dualarm_mpc.model import band
 from dualarm_mpc.model.mld import Model, Rect, State, delivered_objects, in_goal, reachability
-from dualarm_mpc.model.plan import Plan, Segment, Trajectory
+from dualarm_mpc.model.plan import Plan, Segment, Trajectory, relative_gap
 from dualarm_mpc.model.route import horizon_bound
 from dualarm_mpc.model.scenario import Scenario
 from dualarm_mpc.model.spec import StepProblem, rule_formulas, specification, with_no_throw
@@ -225,7 +225,7 @@ def band_bounded(problem: StepProblem, res: StepResult) -> StepResult:
                             res.horizon, spec.m_o)
     if bound <= res.bound:
         return res
-    return dataclasses.replace(res, bound=bound, gap=max(0.0, (res.cost - bound) / res.cost))
+    return dataclasses.replace(res, bound=bound, gap=relative_gap(res.cost, bound))
 
 
 def as_step(problem: StepProblem, found: StepResult, options: SolveOptions | None) -> StepResult:

@@ -14,7 +14,7 @@ from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import Interrupt, SolveOptions, Status
 from dualarm_mpc.model import band, motion
 from dualarm_mpc.model.mld import Model, State
-from dualarm_mpc.model.plan import Plan, Segment
+from dualarm_mpc.model.plan import Plan, Segment, relative_gap
 from dualarm_mpc.model.scenario import MAX_STEP_DELIVERIES, Scenario, ScenarioError
 from dualarm_mpc.model.spec import StepProblem, specification
 from dualarm_mpc.model.verify import verify
@@ -208,9 +208,8 @@ def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
         return result
     if bound <= step.bound:
         return result
-    gap = max(0.0, (step.cost - bound) / step.cost) if step.cost > 0 else 0.0
-    return dataclasses.replace(result, segments=[dataclasses.replace(step, bound=bound,
-                                                                     gap=gap)])
+    return dataclasses.replace(result, segments=[dataclasses.replace(
+        step, bound=bound, gap=relative_gap(step.cost, bound))])
 
 
 def _whole_step(scenario: Scenario) -> StepProblem:
