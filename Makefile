@@ -54,6 +54,8 @@ test: $(VENV)/.installed-test
 # The whole-task search against the monolithic MILP on 3 and 4 objects, seeds 0-9
 # (tests/test_whole.py): the MILP proves each in 10 s to several minutes, hours in all; `make
 # test` runs 3 objects, seed 7 (the quickest measured: 25 s alone, seed 1 55 s, seed 4 430 s).
+# Also the consistency check on 500 random rules (150 in `make test`) and the motion bound on two
+# more scenes (tests/test_check_sound.py, tests/test_motion.py).
 falsify: $(VENV)/.installed-test
 	$(PYTEST) -m falsify
 

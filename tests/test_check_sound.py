@@ -81,12 +81,7 @@ def monolithic_statuses(scenario: Scenario) -> list[Status]:
             for T in horizons]
 
 
-@pytest.mark.slow  # 500 examples: about 30 s of one core
-@settings(max_examples=500, deadline=None, derandomize=True, database=None,
-          suppress_health_check=[HealthCheck.too_slow])
-@given(data=st.data(), scene=st.sampled_from(sorted(SCENES)), rule=st.sampled_from([1, 2]),
-       delivery=st.sampled_from(["reach", "rest"]))
-def test_check_agrees_with_the_monolithic_milp(data, scene: str, rule: int, delivery: str) -> None:
+def _agrees(data, scene: str, rule: int, delivery: str) -> None:
     """A conflict only where the whole task's MILP has no plan at any horizon it is decided at,
     and — the first step being the whole task — a conflict wherever it has none."""
     objects = SCENES[scene]
@@ -104,6 +99,26 @@ def test_check_agrees_with_the_monolithic_milp(data, scene: str, rule: int, deli
         assert report.consistent, (report.conflicts, statuses)
     elif all(s is Status.INFEASIBLE for s in statuses) and not report.undecided:
         assert report.conflicts, statuses
+
+
+def _examples(n: int):
+    """``n`` random cases (scene, rule, delivery, one or two user rules), the same every run."""
+    return lambda test: settings(max_examples=n, deadline=None, derandomize=True, database=None,
+                                 suppress_health_check=[HealthCheck.too_slow])(given(
+        data=st.data(), scene=st.sampled_from(sorted(SCENES)), rule=st.sampled_from([1, 2]),
+        delivery=st.sampled_from(["reach", "rest"]))(test))
+
+
+@pytest.mark.slow  # about 20 s of one core
+@_examples(150)
+def test_check_agrees_with_the_monolithic_milp(data, scene: str, rule: int, delivery: str) -> None:
+    _agrees(data, scene, rule, delivery)
+
+
+@pytest.mark.falsify  # `make falsify`: about a minute of one core
+@_examples(500)
+def test_check_agrees_on_500_cases(data, scene: str, rule: int, delivery: str) -> None:
+    _agrees(data, scene, rule, delivery)
 
 
 # --- the false conflicts of issue 37 -------------------------------------------------------------

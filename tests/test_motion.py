@@ -121,8 +121,10 @@ def test_the_events_bound_a_hand_whose_runs_do_not_alternate() -> None:
 
 
 @pytest.mark.slow
+# (1, 2, None) and (0, 0, None), 28 and 20 s, in `make falsify`
 @pytest.mark.parametrize(("seed", "slack", "region"),
-                         [(0, 0, None), (1, 0, None), (2, 0, None), (1, 2, None),
+                         [pytest.param(0, 0, None, marks=pytest.mark.falsify), (1, 0, None),
+                          (2, 0, None), pytest.param(1, 2, None, marks=pytest.mark.falsify),
                           (1, 0, BESIDE), (2, 1, BESIDE)])
 def test_a_hand_s_bound_is_below_its_one_hand_optimum(seed, slack, region) -> None:
     scene = _scene(3, seed, region=region)
