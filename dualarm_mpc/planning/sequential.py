@@ -132,10 +132,18 @@ class KeptSteps:
     it took. Where the second pass meets a step problem of the first (the same objects from the
     same state: its first step, and every step after one whose plan was its witness) it takes
     them instead of searching again. ``known``: a plan of a step problem found before its
-    search (the whole task's first plan), the search's first incumbent at its horizon."""
+    search (the whole task's first plan), the search's first incumbent at its horizon.
 
-    def __init__(self) -> None:
+    ``first_sight``: the first pass takes each witness as its search first finds it, not
+    optimised (:func:`witness`'s ``first``), so that the first plan comes sooner; the second
+    pass optimises it (:func:`optimised`) before it goes on. Not where a plan exists already
+    (the whole task's search, after its first plan): there the first pass's plan is what a
+    stop leaves, and its witnesses are optimised at once."""
+
+    def __init__(self, first_sight: bool = True) -> None:
+        self.first_sight = first_sight
         self.witnesses: dict[tuple, tuple[StepResult | None, float, dict | None]] = {}
+        self.unoptimised: set[tuple] = set()  # the first pass's witnesses taken at first sight
         self.steps: dict[tuple, tuple[StepResult, float]] = {}
         self.known: dict[tuple, StepResult] = {}
         self.reused_s = 0.0  # seconds of the first pass's searches the second took
@@ -166,7 +174,9 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
     where it is cheaper than the witness (:func:`below_witness`); the step's plan is never
     worse than its witness. ``quick``: the witness itself, where there is one (the anytime
     plan's first pass), with no claim beyond its own (:func:`as_step`). ``kept``: what a first
-    pass searched, taken where this is one of its step problems, and added to where ``quick``.
+    pass searched, taken where this is one of its step problems, and added to where ``quick``;
+    a witness it took at first sight (``KeptSteps.first_sight``) is optimised before it is
+    used.
 
     The result's ``search_stats`` add up the skeleton search's work over every horizon the
     step searched, the witness's included (None under the monolithic MILP)."""
@@ -191,12 +201,21 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
             kept.reused_s += seconds
             t0 -= seconds  # the step's time is its witness's and what follows
             stats.add(record)
+            if not quick and key in kept.unoptimised:  # the first pass took its first sight
+                found = optimised(problem, found, options,
+                                  lambda res: stats.add(res.search_stats))
+                kept.unoptimised.discard(key)
+                kept.witnesses[key] = (found, time.perf_counter() - t0, stats.record())
         else:
             witness_stats = SearchStats.Sum()
-            found = witness(problem, options, lambda res: witness_stats.add(res.search_stats))
+            first = quick and kept is not None and kept.first_sight
+            found = witness(problem, options, lambda res: witness_stats.add(res.search_stats),
+                            first=first)
             stats.add(witness_stats.record())
             if kept is not None:
                 kept.witnesses[key] = (found, time.perf_counter() - t0, witness_stats.record())
+                if first and found is not None:
+                    kept.unoptimised.add(key)
         if quick and found is not None:  # no bound: the first plan comes first (0.2 s a step)
             return (dataclasses.replace(as_step(problem, found, options),
                                         search_stats=stats.record()),
@@ -245,32 +264,67 @@ def unproven(found: StepResult) -> StepResult:
 
 
 def witness(problem: StepProblem, options: SolveOptions | None,
-            on_try: Callable[[StepResult], None] | None = None) -> StepResult | None:
+            on_try: Callable[[StepResult], None] | None = None,
+            first: bool = False) -> StepResult | None:
     """The step's witness: the plan of ``spec`` with no-throw (18) for every object
     (:func:`~dualarm_mpc.model.spec.with_no_throw`, a restriction: quick where ``spec`` allows
     relays), at its own first horizon T₁ by :func:`first_plan`, checked against ``spec`` itself by
     the evaluator (:func:`~dualarm_mpc.search.subprograms.satisfies`); None where ``spec`` has
     no-throw already, or the restriction has no plan or none in time. ``on_try`` hears of each
-    horizon of the restriction tried."""
-    scenario, state, spec = problem.scenario, problem.state, problem.spec
-    restricted = with_no_throw(spec)
+    horizon of the restriction tried. ``first``: the first plan the search finds at T₁ (its
+    feasibility pass), not optimised there (the anytime plan's first pass; :func:`optimised`
+    does the rest)."""
+    restricted = _restriction(problem)
     if restricted is None:
         return None
-    objects = list(spec.objects)
-    model = Model.from_scenario(scenario, objects)
-    cap = scenario.solver.max_horizon
-    if horizon_bound(model, state.select(objects), spec.m_o, frozenset(range(len(objects))),
-                     cap, options.stopped if options else None) > cap:
+    objects = list(problem.spec.objects)
+    cap = problem.scenario.solver.max_horizon
+    if horizon_bound(Model.from_scenario(problem.scenario, objects),
+                     problem.state.select(objects), problem.spec.m_o,
+                     frozenset(range(len(objects))), cap,
+                     options.stopped if options else None) > cap:
         return None  # no route delivers m_o objects without a throw (§V-C's goals)
-    # without the second prover: the witness's own horizons need no proofs
-    alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
-                                                                     prover="none"))
+    if first:
+        options = dataclasses.replace(options or solve_options(problem.scenario),
+                                      mip_rel_gap=1.0)  # any plan is within the gap
     try:
-        res = first_plan(dataclasses.replace(problem, scenario=alone, spec=restricted), options,
-                         on_try)
+        res = first_plan(restricted, options, on_try)
     except PlanningError:
         return None
-    if not satisfies(problem, model, res.trajectory):
+    return _checked(problem, unproven(res) if first else res)
+
+
+def optimised(problem: StepProblem, found: StepResult, options: SolveOptions | None,
+              on_try: Callable[[StepResult], None] | None = None) -> StepResult:
+    """The witness ``found``, taken at first sight (:func:`witness` with ``first``), optimised
+    at its horizon: the restriction's search from it, as :func:`witness` would have gone on;
+    ``found`` itself where that finds nothing cheaper in time."""
+    res = solve_horizon(_restriction(problem), found.horizon, options, incumbent=found)
+    if on_try:
+        on_try(res)
+    better = _checked(problem, res) if res.status.has_solution else None
+    if better is None or better.cost > found.cost:
+        return found
+    return dataclasses.replace(better, undecided=found.undecided, proofs=found.proofs)
+
+
+def _restriction(problem: StepProblem) -> StepProblem | None:
+    """The step with no-throw (18) for every object, searched without the second prover (the
+    witness's own horizons need no proofs); None where ``spec`` has no-throw already."""
+    restricted = with_no_throw(problem.spec)
+    if restricted is None:
+        return None
+    scenario = problem.scenario
+    alone = dataclasses.replace(scenario, solver=dataclasses.replace(scenario.solver,
+                                                                     prover="none"))
+    return dataclasses.replace(problem, scenario=alone, spec=restricted)
+
+
+def _checked(problem: StepProblem, res: StepResult) -> StepResult | None:
+    """A plan of the restriction as the step's witness: checked against the step's own
+    specification, its solver values dropped."""
+    objects = list(problem.spec.objects)
+    if not satisfies(problem, Model.from_scenario(problem.scenario, objects), res.trajectory):
         return None
     # Its solver values are those of the restriction's program (other LTL columns): a MIP start
     # from its forces and grasps instead (subprograms._start).

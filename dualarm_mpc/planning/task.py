@@ -304,7 +304,7 @@ def _passes(scenario: Scenario, options, progress, on_try, on_first_plan, t0: fl
     """Algorithm 1 by the scenario's policies, anytime from each step's no-throw witness where
     the rules allow throws (:func:`plan`). ``known``: the whole task's first plan, the search's
     incumbent at its horizon (:func:`_incumbent`)."""
-    kept = KeptSteps()
+    kept = KeptSteps(first_sight=known is None)
     if known is not None:
         kept.known[KeptSteps.key(_whole_step(scenario))] = _incumbent(known)
     first = transport(scenario, options, progress, on_try, kept, quick=True)
