@@ -7,6 +7,7 @@ transportation's plan, joined into one step."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import pytest
 
@@ -25,15 +26,31 @@ def four_objects(rule: int) -> dm.Scenario:
                                           "rule": rule, "m_o": 2, "n_o": 4})
 
 
+def optimised_spy(heard: list) -> Callable:
+    """``sequential.optimised``, telling ``heard`` of each witness it gets and what it returns."""
+    real = sequential.optimised
+
+    def spy(problem, found, *args, **kw):
+        res = real(problem, found, *args, **kw)
+        heard.append((problem, found, res))
+        return res
+
+    return spy
+
+
 @pytest.fixture(scope="module")
 def refined():
-    """Rule 2: the plan, and the first pass's plan as ``on_first_plan`` heard of it."""
+    """Rule 2: the plan, the first pass's plan as ``on_first_plan`` heard of it, and each
+    witness the second pass optimised: (step problem, the first pass's, the optimised)."""
     firsts: list[dm.Plan] = []
-    return dm.plan(four_objects(2), on_first_plan=firsts.append), firsts
+    heard: list = []
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sequential, "optimised", optimised_spy(heard))
+        return dm.plan(four_objects(2), on_first_plan=firsts.append), firsts, heard
 
 
 def test_the_first_plan_is_complete_verified_and_claims_no_more_than_it_has(refined) -> None:
-    plan, firsts = refined
+    plan, firsts, _ = refined
     assert len(firsts) == 1
     first = firsts[0]
     assert first.verified and not first.partial
@@ -46,7 +63,7 @@ def test_the_first_plan_is_complete_verified_and_claims_no_more_than_it_has(refi
 
 
 def test_the_refined_plan_is_no_worse_and_counts_every_search(refined) -> None:
-    plan, (first,) = refined
+    plan, (first,), _ = refined
     assert plan.verified and not plan.partial
     assert plan.total_cost <= first.total_cost + 1e-9
     assert plan.first_plan_s == first.first_plan_s
@@ -57,6 +74,18 @@ def test_the_refined_plan_is_no_worse_and_counts_every_search(refined) -> None:
     assert plan.first_plan_s < plan.total_solve_time_s
     assert dm.Plan.from_json(plan.to_json()).unused_solve_time_s == pytest.approx(
         plan.unused_solve_time_s, abs=1e-4)
+
+
+def test_the_second_pass_optimises_the_witnesses_the_first_took_at_first_sight(refined) -> None:
+    """The first pass takes each witness as its search first finds it (the first plan comes
+    sooner); the second pass meets the first step again and optimises its witness at its
+    horizon before it searches the shorter ones: never worse."""
+    _, (first,), heard = refined
+    (problem, found, _), *_ = heard
+    assert problem.spec.objects == tuple(first.segments[0].objects)
+    assert found.cost == pytest.approx(first.segments[0].cost)
+    for _, before, after in heard:
+        assert after.horizon == before.horizon and after.cost <= before.cost + 1e-9
 
 
 def test_a_stop_after_the_first_plan_returns_it_whole() -> None:
@@ -82,23 +111,27 @@ def test_without_a_witness_one_pass_is_the_plan() -> None:
     assert plan.first_plan_s >= plan.total_solve_time_s - 1e-3
 
 
-def test_the_whole_task_under_rule_2_searches_from_its_no_throw_witness() -> None:
+def test_the_whole_task_under_rule_2_searches_from_its_no_throw_witness(monkeypatch) -> None:
     """``plan --mo all`` under rule 2: after the first plan (sequential transportation's,
     joined), the whole task's search starts from its no-throw witness, one step over every
     object; the plan returned is no worse than either and says what it has not proven."""
     scenario = dm.whole_task(dm.load_scenario("table1_vd", {
         "seed": 1, "random_objects": {"count": 3}, "rule": 2, "delivery": "rest"}))
     firsts: list[dm.Plan] = []
+    heard: list = []
+    monkeypatch.setattr(sequential, "optimised", optimised_spy(heard))
     plan = dm.plan(scenario, on_first_plan=firsts.append)
+    # the whole step's witness is optimised at once: the first plan exists already, and the
+    # search's first pass is what a stop leaves; only sequential transportation's are not
+    assert heard and all(problem.spec.m_o == FIRST_PASS[0] for problem, _, _ in heard)
     (first,) = firsts
     assert [s.objects for s in first.segments] == [[0, 1, 2]]
     assert first.segments[0].sequential_steps >= 2
     assert first.verified and first.first_plan_s == plan.first_plan_s
     assert plan.verified and [sorted(s.objects) for s in plan.segments] == [[0, 1, 2]]
     assert (plan.makespan, plan.total_cost) <= (first.makespan, first.total_cost + 1e-9)
-    sequential = dm.plan(first_pass(scenario))  # never worse than its plan, witnesses refined
-    assert (plan.makespan, plan.total_cost) <= (sequential.makespan,
-                                                 sequential.total_cost + 1e-9)
+    steps = dm.plan(first_pass(scenario))  # never worse than its plan, witnesses refined
+    assert (plan.makespan, plan.total_cost) <= (steps.makespan, steps.total_cost + 1e-9)
     step = plan.segments[0]
     assert step.sequential_steps is None and step.witness_cost is not None
     assert step.cost <= step.witness_cost + 1e-9
