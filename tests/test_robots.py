@@ -206,7 +206,7 @@ def test_a_panda_run_in_lockstep_is_the_same_twice():
     from dualarm_mpc.base.outputs import json_text
     from dualarm_mpc.sim.closed_loop import simulate
 
-    scenario = load_scenario("panda_vd", {"random_objects": {"count": 2}, "m_o": 1, "n_o": 2},
+    scenario = load_scenario("panda_vd", {"random_objects": {"count": 1}, "m_o": 1, "n_o": 1},
                              on_robot=True)
     first, second = (json_text(simulate(scenario).to_json()) for _ in range(2))
     assert first == second and '"all_delivered": true' in first
