@@ -201,7 +201,7 @@ def plan_step(problem: StepProblem, options: SolveOptions | None = None,
             kept.reused_s += seconds
             t0 -= seconds  # the step's time is its witness's and what follows
             stats.add(record)
-            if not quick and key in kept.unoptimised:  # the first pass took its first sight
+            if not quick and key in kept.unoptimised:  # taken at first sight by the first pass
                 found = optimised(problem, found, options,
                                   lambda res: stats.add(res.search_stats))
                 kept.unoptimised.discard(key)
@@ -278,9 +278,9 @@ def witness(problem: StepProblem, options: SolveOptions | None,
     if restricted is None:
         return None
     objects = list(problem.spec.objects)
+    model = Model.from_scenario(problem.scenario, objects)
     cap = problem.scenario.solver.max_horizon
-    if horizon_bound(Model.from_scenario(problem.scenario, objects),
-                     problem.state.select(objects), problem.spec.m_o,
+    if horizon_bound(model, problem.state.select(objects), problem.spec.m_o,
                      frozenset(range(len(objects))), cap,
                      options.stopped if options else None) > cap:
         return None  # no route delivers m_o objects without a throw (§V-C's goals)
@@ -291,7 +291,7 @@ def witness(problem: StepProblem, options: SolveOptions | None,
         res = first_plan(restricted, options, on_try)
     except PlanningError:
         return None
-    return _checked(problem, unproven(res) if first else res)
+    return _checked(problem, model, unproven(res) if first else res)
 
 
 def optimised(problem: StepProblem, found: StepResult, options: SolveOptions | None,
@@ -302,7 +302,8 @@ def optimised(problem: StepProblem, found: StepResult, options: SolveOptions | N
     res = solve_horizon(_restriction(problem), found.horizon, options, incumbent=found)
     if on_try:
         on_try(res)
-    better = _checked(problem, res) if res.status.has_solution else None
+    model = Model.from_scenario(problem.scenario, list(problem.spec.objects))
+    better = _checked(problem, model, res) if res.status.has_solution else None
     if better is None or better.cost > found.cost:
         return found
     return dataclasses.replace(better, undecided=found.undecided, proofs=found.proofs)
@@ -320,11 +321,10 @@ def _restriction(problem: StepProblem) -> StepProblem | None:
     return dataclasses.replace(problem, scenario=alone, spec=restricted)
 
 
-def _checked(problem: StepProblem, res: StepResult) -> StepResult | None:
+def _checked(problem: StepProblem, model: Model, res: StepResult) -> StepResult | None:
     """A plan of the restriction as the step's witness: checked against the step's own
-    specification, its solver values dropped."""
-    objects = list(problem.spec.objects)
-    if not satisfies(problem, Model.from_scenario(problem.scenario, objects), res.trajectory):
+    specification (``model``: of its objects), its solver values dropped."""
+    if not satisfies(problem, model, res.trajectory):
         return None
     # Its solver values are those of the restriction's program (other LTL columns): a MIP start
     # from its forces and grasps instead (subprograms._start).
