@@ -436,9 +436,9 @@ def test_plan_budget_writes_the_best_complete_plan_when_it_runs_out(tmp_path, ca
     out = tmp_path / "plan.json"
     assert main(["plan", "table1_vd", "--mo", "all", "--seed", "2", "--rule", "1",
                  "--set", "random_objects: {count: 5}", "--delivery", "rest",
-                 "--budget", "15", "--out", str(out)]) == 0
+                 "--budget", "6", "--out", str(out)]) == 0
     stdout = capsys.readouterr().out
-    assert "budget of 15 s spent: the best complete plan so far" in stdout
+    assert "budget of 6 s spent: the best complete plan so far" in stdout
     assert "verified: " in stdout and "certificate: " in stdout
     data = json.loads(out.read_text())
     (step,) = data["segments"]
