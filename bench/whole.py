@@ -8,7 +8,9 @@ object, anytime from sequential transportation's plan at ``task.FIRST_PASS`` joi
 step) and by sequential transportation with ``--sequential`` (m_o, n_o) (Algorithm 1, n_o at
 most n). Per plan: wall time until the first plan was verified (``first_plan_s``) and until the
 run ended (``wall_time_s``), whether the plan is the search's or still the first (``joined``:
-sequential transportation's; ``guided``: the route-guided plan, ``planning/guided.py``),
+sequential transportation's, at (m_o, n_o) ``joined_row``: ``task.FIRST_PASS``, or
+``task.LARGER_STEPS`` where that was shorter; ``guided``: the route-guided plan,
+``planning/guided.py``),
 cost (17), the proven
 bound and gap, whether every horizon is proven minimal, the makespan (steps of Δt), the steps,
 and the skeleton search's work (``search_stats`` summed over the steps: expansions, prunes,
@@ -109,6 +111,7 @@ def plan_one(n: int, rule: int, seed: int, method: str, args: argparse.Namespace
                 makespan=plan.trajectory.steps, steps=len(plan.segments),
                 horizons=[s.horizon for s in plan.segments], stopped=stop.is_set(),
                 joined=plan.segments[0].sequential_steps is not None,
+                joined_row=plan.segments[0].sequential_row,
                 guided=plan.segments[0].guided,
                 least_horizon=least_horizon(plan),
                 **{k: sum(s.get(k, 0) for s in stats) for k in STATS})
@@ -184,7 +187,8 @@ def makespan(r: dict) -> str:
 def origin(r: dict) -> str:
     """Whose the whole plan is: the search's, or still a first plan's."""
     if r.get("joined"):
-        return "sequential's, joined"
+        row = r.get("joined_row")  # not in records before task.LARGER_STEPS
+        return "sequential's, joined" if row is None else f"sequential ({row[0]},{row[1]}), joined"
     return "route-guided" if r.get("guided") else "the search's"
 
 

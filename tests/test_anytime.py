@@ -9,16 +9,25 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 
+import numpy as np
 import pytest
 
 import dualarm_mpc as dm
 from dualarm_mpc.milp.horizon import StepResult, solve_options
 from dualarm_mpc.milp.solver import Status
-from dualarm_mpc.model.mld import Model, State, reachability
+from dualarm_mpc.model.mld import Model, State, in_goal, reachability
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning import sequential
-from dualarm_mpc.planning.sequential import HorizonTried, solve_horizon
-from dualarm_mpc.planning.task import FIRST_PASS, _Horizons, _origin, first_pass
+from dualarm_mpc.planning.sequential import HorizonTried, predict_horizon, solve_horizon
+from dualarm_mpc.planning.task import (
+    FIRST_PASS,
+    LARGER_STEPS,
+    _Horizons,
+    _in_larger_steps,
+    _origin,
+    _whole_step,
+    first_pass,
+)
 
 
 def four_objects(rule: int) -> dm.Scenario:
@@ -304,3 +313,55 @@ def test_a_stop_within_a_horizon_keeps_the_plan_it_found(monkeypatch) -> None:
     assert step.sequential_steps is None and plan.makespan < first.makespan
     assert step.bound <= step.cost and (step.status == "optimal") == (
         step.gap <= whole_of_four().solver.mip_rel_gap)
+
+
+# --- the whole task in larger steps ------------------------------------------------------------
+
+
+def seven_objects() -> dm.Scenario:
+    return dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 1, "random_objects": {"count": 7}, "rule": 1, "delivery": "rest",
+        "solver": {"time_limit_s": 60}}))  # time to spare under load
+
+
+@pytest.fixture(scope="module")
+def in_larger_steps():
+    """Seven objects, rule 1: the whole task's first plan (``FIRST_PASS``'s four steps, 40 Δt)
+    and sequential transportation at ``LARGER_STEPS`` after it, joined (two steps, 35 Δt)."""
+    scenario, stop = seven_objects(), dm.Interrupt()
+    first = dm.plan(scenario, stop=stop, on_first_plan=lambda _: stop.set())
+    return first, _in_larger_steps(scenario, first, solve_options(scenario))
+
+
+def test_the_whole_task_in_larger_steps_replaces_a_longer_first_plan(in_larger_steps) -> None:
+    first, larger = in_larger_steps
+    scenario = seven_objects()
+    assert first.segments[0].sequential_row == list(FIRST_PASS)
+    assert larger is not None and larger.verified and verify(scenario, larger).ok
+    (step,) = larger.segments
+    assert step.sequential_row == list(LARGER_STEPS) and step.sequential_steps == 2
+    assert predict_horizon(_whole_step(scenario)) <= larger.makespan < first.makespan
+    assert larger.first_plan_s == first.first_plan_s  # the time to the first plan stays
+    last = larger.trajectory
+    for j, o in enumerate(scenario.task.objects):  # every object at rest in its goal
+        assert in_goal(last.object_pos[-1, j], scenario.task.goals[o.goal])
+        assert np.allclose(last.object_vel[-1, j], 0.0)
+    assert step.bound == 0.0 and step.status == "feasible"  # it claims nothing more
+    assert dm.Plan.from_json(larger.to_json()).segments[0].sequential_row == list(LARGER_STEPS)
+
+
+@pytest.mark.parametrize("overrides", [{"rule": 2}, {"random_objects": {"count": 6}}])
+def test_larger_steps_are_not_tried_where_an_object_may_be_thrown_or_on_fewer_objects(
+        in_larger_steps, overrides) -> None:
+    first, _ = in_larger_steps
+    scenario = dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 1, "random_objects": {"count": 7}, "rule": 1, "delivery": "rest", **overrides}))
+    assert _in_larger_steps(scenario, first, solve_options(scenario)) is None
+
+
+def test_larger_steps_say_nothing_once_stopped(in_larger_steps) -> None:
+    first, _ = in_larger_steps
+    scenario, stop = seven_objects(), dm.Interrupt()
+    stop.set()
+    options = dataclasses.replace(solve_options(scenario), interrupt=stop)
+    assert _in_larger_steps(scenario, first, options) is None

@@ -112,6 +112,9 @@ class Segment:
     # reached its horizon from it and bettered nothing (then the search's certificate); None:
     # searched
     sequential_steps: int | None = None
+    # [m_o, n_o] of the sequential transportation those steps are (``task.FIRST_PASS``, or
+    # ``task.LARGER_STEPS`` where that plan was shorter); None: not joined, or a file before it
+    sequential_row: list[int] | None = None
     # A whole-task step whose plan is the route-guided program's first (planning/guided.py):
     # shorter than sequential transportation's, its cost unproven (as above)
     guided: bool = False
@@ -139,6 +142,7 @@ class Segment:
             "bound": round(self.bound, 9),
             "search_stats": self.search_stats,
             "sequential_steps": self.sequential_steps,
+            "sequential_row": self.sequential_row,
             "guided": self.guided,
         }
 
@@ -189,11 +193,11 @@ class Plan:
         """The plan's length in steps of Δt: the horizons of its steps added up."""
         return int(sum(s.horizon for s in self.segments))
 
-    def as_one_step(self) -> Plan:
+    def as_one_step(self, row: tuple[int, int] | None = None) -> Plan:
         """This complete plan as one step over every object: the whole task's plan
-        (``--mo all``) that sequential transportation gives. Its steps' certificates hold for
-        the steps only, so the step claims nothing beyond being a plan: bound 0, status
-        feasible, every shorter horizon undecided."""
+        (``--mo all``) that sequential transportation gives, at ``row`` = (m_o, n_o). Its
+        steps' certificates hold for the steps only, so the step claims nothing beyond being a
+        plan: bound 0, status feasible, every shorter horizon undecided."""
         steps = self.segments
         stats: dict = {}
         for s in steps:
@@ -208,7 +212,8 @@ class Plan:
             binaries=max((s.binaries for s in steps), default=0),
             gap=1.0 if cost > 0 else 0.0, cpu_time_s=self.total_cpu_time_s,
             horizons_undecided=list(range(1, self.makespan)),
-            search_stats=stats or None, sequential_steps=len(steps))
+            search_stats=stats or None, sequential_steps=len(steps),
+            sequential_row=None if row is None else list(row))
         return replace(self, segments=[one])
 
     @property

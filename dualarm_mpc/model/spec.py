@@ -131,6 +131,10 @@ class Specification:
         every release puts them in their goal (the route bound, ``route.py``, relies on it)."""
         return self.kept_by("no-throw (18)")
 
+    def no_throw_for_all(self) -> bool:
+        """Whether no-throw (18) is in force for every object of the step."""
+        return self.released_only_in_goal() == frozenset(self.objects)
+
     def kept_by(self, rule_name: str) -> frozenset[int]:
         """The objects (scenario indices) j of the step for which the paper's rule ``rule_name``
         (a key of ``RULE_TEXT``) is in force for both arms, each other object of the step in
@@ -401,7 +405,7 @@ def with_no_throw(spec: Specification) -> Specification | None:
     is one of ``spec``'s), whose search is far quicker where ``spec`` allows relays (route
     bounds and order splits apply to every object); its plan is the step's witness
     (``sequential.plan_step``). None when no-throw is already in force for them all."""
-    if spec.released_only_in_goal() == frozenset(spec.objects):
+    if spec.no_throw_for_all():
         return None
     name = "no-throw (18)"
     rule = expand(parse(RULE_TEXT[name]), [j + 1 for j in spec.objects])

@@ -237,7 +237,7 @@ def band_bounded(problem: StepProblem, res: StepResult) -> StepResult:
     less. Not of the anytime plan's first pass, whose witnesses claim nothing."""
     spec = problem.spec
     objects = list(spec.objects)
-    if res.gap <= 0 or spec.released_only_in_goal() == set(objects) or not band.holds(spec):
+    if res.gap <= 0 or spec.no_throw_for_all() or not band.holds(spec):
         return res
     model = Model.from_scenario(problem.scenario, objects)
     bound = band.task_bound(model, problem.state.select(objects), list(range(len(objects))),

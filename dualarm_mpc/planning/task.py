@@ -35,6 +35,14 @@ __all__ = ["ConflictError", "VerificationError", "first_pass", "plan", "whole_ta
 # (m_o, n_o) of the sequential transportation whose plan, joined into one step, is the whole
 # task's first (``plan --mo all``): Table II's first row, the quickest.
 FIRST_PASS = (2, 5)
+# ... and of the one tried next, under no-throw (18), on whole tasks of ``LARGER_STEPS_FROM``
+# objects or more, past what the search (five) and the route-guided plan (six) reach in a run's
+# budget: steps of four, each a whole task the search proves in seconds. On §V-D's ten objects
+# its plan is 0–4 Δt shorter than FIRST_PASS's on every seed, in 11–39 s; steps of three or
+# five are longer (docs/search.md, "The anytime plan"). Under rule 2 its steps' searches take
+# the run's budget and give no shorter plan.
+LARGER_STEPS = (4, 4)
+LARGER_STEPS_FROM = 7
 
 
 class ConflictError(PlanningError):
@@ -85,7 +93,8 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     An anytime plan: a complete verified plan first, then the search that may better it.
     Of the whole task (:func:`whole_task`), the first is sequential transportation's at
     ``FIRST_PASS``, joined into one step (:meth:`~dualarm_mpc.model.plan.Plan.as_one_step`), or
-    the route-guided plan (:mod:`~dualarm_mpc.planning.guided`) where that is shorter, and
+    the route-guided plan (:mod:`~dualarm_mpc.planning.guided`) or sequential transportation at
+    ``LARGER_STEPS``, joined, where that is shorter, and
     the whole-task search's plan replaces it where it is proven (optimal at a proven-minimal
     horizon), or its makespan is shorter, or as short and cheaper; at the first plan's horizon
     the search starts from it (its incumbent), and where it betters nothing the first plan
@@ -125,6 +134,11 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     guided = None if options.stopped() else _guided(scenario, first, options)
     if guided is not None:
         first, spent = guided, spent + guided.total_solve_time_s
+    if not options.stopped():
+        t1 = time.perf_counter()
+        larger = _in_larger_steps(scenario, first, options)
+        spent += time.perf_counter() - t1
+        first = larger or first
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
     capped = dataclasses.replace(scenario, solver=dataclasses.replace(
@@ -166,6 +180,28 @@ def _guided(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | No
     return _verified(scenario, plan, first.first_plan_s)
 
 
+def _in_larger_steps(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | None:
+    """Sequential transportation at ``LARGER_STEPS``, joined into one step and verified as the
+    whole task's plan, where it betters ``first`` by the whole task's order (makespan, then
+    cost), with ``first``'s ``first_plan_s``; None where it does not, is not tried (fewer than
+    ``LARGER_STEPS_FROM`` objects, or one that may be thrown), or is stopped."""
+    steps = _in_steps(scenario, LARGER_STEPS)
+    if steps is None or scenario.n_objects < LARGER_STEPS_FROM \
+            or not _whole_step(scenario).spec.no_throw_for_all():
+        return None
+    try:
+        found = _passes(steps, options, None, None, None, time.perf_counter())
+    except VerificationError:
+        raise  # a defect, never hidden
+    except PlanningError:
+        return None  # out of time, or stopped: the first plan stands
+    one = found.as_one_step(LARGER_STEPS)
+    if found.partial or not verify(scenario, one).ok \
+            or (one.makespan, one.total_cost) >= (first.makespan, first.total_cost):
+        return None
+    return dataclasses.replace(one, verified=True, first_plan_s=first.first_plan_s)
+
+
 def _origin(whole: Plan, first: Plan) -> Plan:
     """The search's plan ``whole``, marked as ``first`` where it is ``first`` itself: the
     search's incumbent at its horizon (:func:`_incumbent`), bettered by nothing, whose
@@ -175,7 +211,8 @@ def _origin(whole: Plan, first: Plan) -> Plan:
         return whole
     (step,), (own,) = whole.segments, first.segments
     return dataclasses.replace(whole, segments=[dataclasses.replace(
-        step, guided=own.guided, sequential_steps=own.sequential_steps)])
+        step, guided=own.guided, sequential_steps=own.sequential_steps,
+        sequential_row=own.sequential_row)])
 
 
 def _incumbent(first: Plan) -> StepResult:
@@ -200,7 +237,7 @@ def _motion_bounded(scenario: Scenario, result: Plan) -> Plan:
     whole = _whole_step(scenario)
     objects, spec = list(whole.spec.objects), whole.spec
     model = Model.from_scenario(scenario)
-    if spec.released_only_in_goal() == frozenset(objects):
+    if spec.no_throw_for_all():
         bound = motion.task_bound(model, whole.state, objects, step.horizon)
     elif band.holds(spec):
         bound = band.task_bound(model, whole.state, objects, step.horizon)
@@ -259,8 +296,14 @@ def first_pass(scenario: Scenario) -> Scenario | None:
     """The sequential transportation whose plan is the whole task's first: ``scenario`` at
     ``FIRST_PASS``'s (m_o, n_o); None where ``scenario`` is not a whole task
     (:func:`whole_task`) of more than that m_o objects."""
+    return _in_steps(scenario, FIRST_PASS)
+
+
+def _in_steps(scenario: Scenario, row: tuple[int, int]) -> Scenario | None:
+    """The whole task ``scenario`` as sequential transportation at ``row`` = (m_o, n_o); None
+    where ``scenario`` is not a whole task of more than m_o objects."""
     task, n = scenario.task, scenario.n_objects
-    m_o, n_o = FIRST_PASS
+    m_o, n_o = row
     if not task.m_o == task.n_o == n > m_o:
         return None
     return dataclasses.replace(scenario, task=dataclasses.replace(task, m_o=m_o,
@@ -280,7 +323,7 @@ def _sequential_first(scenario: Scenario, options, progress, on_try, on_first_pl
     told: list[Plan] = []
 
     def joined(found: Plan) -> None:
-        one = found.as_one_step()
+        one = found.as_one_step(FIRST_PASS)
         if verify(scenario, one).ok:  # else the joined steps break a rule of the whole task
             told.append(dataclasses.replace(one, verified=True,
                                             first_plan_s=told[0].first_plan_s if told else
