@@ -327,10 +327,14 @@ def seven_objects() -> dm.Scenario:
 @pytest.fixture(scope="module")
 def in_larger_steps():
     """Seven objects, rule 1: the whole task's first plan (``FIRST_PASS``'s four steps, 40 Δt)
-    and sequential transportation at ``LARGER_STEPS`` after it, joined (two steps, 35 Δt)."""
-    scenario, stop = seven_objects(), dm.Interrupt()
-    first = dm.plan(scenario, stop=stop, on_first_plan=lambda _: stop.set())
-    return first, _in_larger_steps(scenario, first, solve_options(scenario))
+    and sequential transportation at ``LARGER_STEPS`` after it, joined (two steps, 35 Δt), as
+    ``on_shorter_plan`` hears of it; stopped there, before the search."""
+    scenario, stop, heard = seven_objects(), dm.Interrupt(), []
+    plan = dm.plan(scenario, stop=stop, on_first_plan=heard.append,
+                   on_shorter_plan=lambda better: (heard.append(better), stop.set()))
+    (first, larger) = heard
+    assert plan.makespan == larger.makespan and plan.verified  # the stop keeps it
+    return first, larger
 
 
 def test_the_whole_task_in_larger_steps_replaces_a_longer_first_plan(in_larger_steps) -> None:

@@ -204,6 +204,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
               f"{first.first_plan_s:.2f} s ({how}", flush=True)
         count[0] = headed[0] = 0
 
+    def shorter_plan(better) -> None:  # the whole task's first plan replaced before the search
+        step = better.segments[0]
+        how = ("the route-guided plan" if step.guided else
+               f"sequential transportation in steps of {step.sequential_row[0]}, joined")
+        print(f"a shorter verified plan: cost {better.total_cost:.3f}, {better.makespan} steps "
+              f"({how}); searching on", flush=True)
+
     stop = Interrupt()
     problems: list[str] = []
     budget = None if args.budget is None else threading.Timer(args.budget, stop.set)
@@ -212,7 +219,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         budget.start()
     try:
         result = interruptible(lambda: plan(scenario, check_first=False, progress=progress,
-                                            on_try=tried, stop=stop, on_first_plan=first_plan),
+                                            on_try=tried, stop=stop, on_first_plan=first_plan,
+                                            on_shorter_plan=shorter_plan),
                                stop, heartbeat)
     except VerificationError as err:
         result, problems = err.plan, err.problems

@@ -86,7 +86,8 @@ def plan(scenario: Scenario, *, check_first: bool = True,
          progress: Callable[[Segment], None] | None = None,
          on_try: Callable[[HorizonTried], None] | None = None,
          stop: Interrupt | None = None,
-         on_first_plan: Callable[[Plan], None] | None = None) -> Plan:
+         on_first_plan: Callable[[Plan], None] | None = None,
+         on_shorter_plan: Callable[[Plan], None] | None = None) -> Plan:
     """Plan every object of ``scenario`` into its goal and verify the plan (re-simulated through
     the model, each step's LTL checked by the independent evaluator).
 
@@ -107,9 +108,10 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     ``check_first``: run the consistency check (without its joint step) first and raise
     :class:`ConflictError` on a conflict. ``progress`` hears of each sequential step of each
     pass, ``on_try`` of each horizon tried, ``on_first_plan`` of the first verified plan when a
-    search follows it. ``stop``, once set (from another thread), ends the search: the best
-    complete plan so far, or else the steps planned so far as a partial plan (``partial``), not
-    verified.
+    search follows it, ``on_shorter_plan`` of a whole task's route-guided plan or plan in
+    ``LARGER_STEPS`` where it takes the first plan's place, before the search. ``stop``, once
+    set (from another thread), ends the search: the best complete plan so far, or else the
+    steps planned so far as a partial plan (``partial``), not verified.
 
     Raises :class:`~dualarm_mpc.planning.sequential.PlanningError` when a step has no plan
     (``proven``: none exists up to the horizon cap) and no complete plan exists,
@@ -134,11 +136,14 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     guided = None if options.stopped() else _guided(scenario, first, options)
     if guided is not None:
         first, spent = guided, spent + guided.total_solve_time_s
+    larger = None
     if not options.stopped():
         t1 = time.perf_counter()
         larger = _in_larger_steps(scenario, first, options)
         spent += time.perf_counter() - t1
         first = larger or first
+    if on_shorter_plan and (guided or larger):
+        on_shorter_plan(first)
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
     capped = dataclasses.replace(scenario, solver=dataclasses.replace(
