@@ -113,7 +113,8 @@ class Segment:
     # searched
     sequential_steps: int | None = None
     # [m_o, n_o] of the sequential transportation those steps are (``task.FIRST_PASS``, or
-    # ``task.LARGER_STEPS`` where that plan was shorter); None: not joined, or a file before it
+    # ``task.LARGER_STEPS`` where that plan was shorter; n_o at most the objects); None: not
+    # joined, or a file before it
     sequential_row: list[int] | None = None
     # A whole-task step whose plan is the route-guided program's first (planning/guided.py):
     # shorter than sequential transportation's, its cost unproven (as above)

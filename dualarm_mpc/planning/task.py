@@ -200,11 +200,18 @@ def _in_larger_steps(scenario: Scenario, first: Plan, options: SolveOptions) -> 
         raise  # a defect, never hidden
     except PlanningError:
         return None  # out of time, or stopped: the first plan stands
-    one = found.as_one_step(LARGER_STEPS)
-    if found.partial or not verify(scenario, one).ok \
-            or (one.makespan, one.total_cost) >= (first.makespan, first.total_cost):
+    one = None if found.partial else _joined(scenario, steps, found)
+    if one is None or (one.makespan, one.total_cost) >= (first.makespan, first.total_cost):
         return None
-    return dataclasses.replace(one, verified=True, first_plan_s=first.first_plan_s)
+    return dataclasses.replace(one, first_plan_s=first.first_plan_s)
+
+
+def _joined(scenario: Scenario, steps: Scenario, found: Plan) -> Plan | None:
+    """``found``, a complete plan of ``steps`` (the whole task ``scenario`` in sequential
+    steps), joined into one step and verified as the whole task's plan; None where the joined
+    steps break a rule of the whole task."""
+    one = found.as_one_step((steps.task.m_o, steps.task.n_o))
+    return dataclasses.replace(one, verified=True) if verify(scenario, one).ok else None
 
 
 def _origin(whole: Plan, first: Plan) -> Plan:
@@ -328,10 +335,9 @@ def _sequential_first(scenario: Scenario, options, progress, on_try, on_first_pl
     told: list[Plan] = []
 
     def joined(found: Plan) -> None:
-        one = found.as_one_step(FIRST_PASS)
-        if verify(scenario, one).ok:  # else the joined steps break a rule of the whole task
-            told.append(dataclasses.replace(one, verified=True,
-                                            first_plan_s=told[0].first_plan_s if told else
+        one = _joined(scenario, steps, found)
+        if one is not None:
+            told.append(dataclasses.replace(one, first_plan_s=told[0].first_plan_s if told else
                                             time.perf_counter() - t0))
             if on_first_plan and len(told) == 1:
                 on_first_plan(told[0])
