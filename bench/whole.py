@@ -112,7 +112,7 @@ def plan_one(n: int, rule: int, seed: int, method: str, args: argparse.Namespace
                 horizons=[s.horizon for s in plan.segments], stopped=stop.is_set(),
                 joined=plan.segments[0].sequential_steps is not None,
                 joined_row=plan.segments[0].sequential_row,
-                guided=plan.segments[0].guided,
+                guided=plan.segments[0].guided, shortened=plan.segments[0].shortened,
                 least_horizon=least_horizon(plan),
                 **{k: sum(s.get(k, 0) for s in stats) for k in STATS})
     except dm.VerificationError as err:
@@ -186,10 +186,13 @@ def makespan(r: dict) -> str:
 
 def origin(r: dict) -> str:
     """Whose the whole plan is: the search's, or still a first plan's."""
+    taken = r.get("shortened")  # not in records before planning/shorten.py
+    shortened = f", {taken} steps out" if taken else ""
     if r.get("joined"):
         row = r.get("joined_row")  # not in records before task.LARGER_STEPS
-        return "sequential's, joined" if row is None else f"sequential ({row[0]},{row[1]}), joined"
-    return "route-guided" if r.get("guided") else "the search's"
+        return ("sequential's, joined" if row is None else
+                f"sequential ({row[0]},{row[1]}), joined") + shortened
+    return "route-guided" + shortened if r.get("guided") else "the search's"
 
 
 def seed_table(runs: list[dict]) -> str:

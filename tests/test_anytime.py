@@ -7,6 +7,7 @@ transportation's plan, joined into one step."""
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -19,12 +20,15 @@ from dualarm_mpc.model.mld import Model, State, in_goal, reachability
 from dualarm_mpc.model.verify import verify
 from dualarm_mpc.planning import sequential
 from dualarm_mpc.planning.sequential import HorizonTried, predict_horizon, solve_horizon
+from dualarm_mpc.planning.shorten import _removals, shortened
 from dualarm_mpc.planning.task import (
     FIRST_PASS,
     LARGER_STEPS,
     _Horizons,
     _in_larger_steps,
     _origin,
+    _sequential_first,
+    _shortened,
     _whole_step,
     first_pass,
 )
@@ -123,9 +127,11 @@ def test_without_a_witness_one_pass_is_the_plan() -> None:
 def test_the_whole_task_under_rule_2_searches_from_its_no_throw_witness(monkeypatch) -> None:
     """``plan --mo all`` under rule 2: after the first plan (sequential transportation's,
     joined), the whole task's search starts from its no-throw witness, one step over every
-    object; the plan returned is no worse than either and says what it has not proven."""
+    object; the plan returned is no worse than either and says what it has not proven. (Seed
+    0: the witness's horizon is below the first plan re-timed, planning/shorten.py; on seed 1
+    it is not, and the search runs without one.)"""
     scenario = dm.whole_task(dm.load_scenario("table1_vd", {
-        "seed": 1, "random_objects": {"count": 3}, "rule": 2, "delivery": "rest"}))
+        "seed": 0, "random_objects": {"count": 3}, "rule": 2, "delivery": "rest"}))
     firsts: list[dm.Plan] = []
     heard: list = []
     monkeypatch.setattr(sequential, "optimised", optimised_spy(heard))
@@ -318,9 +324,9 @@ def test_a_stop_within_a_horizon_keeps_the_plan_it_found(monkeypatch) -> None:
 # --- the whole task in larger steps ------------------------------------------------------------
 
 
-def seven_objects() -> dm.Scenario:
+def seven_objects(rule: int = 1) -> dm.Scenario:
     return dm.whole_task(dm.load_scenario("table1_vd", {
-        "seed": 1, "random_objects": {"count": 7}, "rule": 1, "delivery": "rest",
+        "seed": 1, "random_objects": {"count": 7}, "rule": rule, "delivery": "rest",
         "solver": {"time_limit_s": 60}}))  # time to spare under load
 
 
@@ -369,3 +375,73 @@ def test_larger_steps_say_nothing_once_stopped(in_larger_steps) -> None:
     stop.set()
     options = dataclasses.replace(solve_options(scenario), interrupt=stop)
     assert _in_larger_steps(scenario, first, options) is None
+
+
+# --- the first plan re-timed (planning/shorten.py) ---------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def re_timed():
+    """Seven objects, rule 2: the whole task's first plan, sequential transportation's at
+    (2, 5), joined (39 Δt), and that plan re-timed, as ``plan`` takes it before the search."""
+    scenario = seven_objects(rule=2)
+    options = solve_options(scenario)
+    first = _sequential_first(scenario, options, None, None, None, time.perf_counter())
+    return first, _shortened(scenario, first, options)
+
+
+def grasps(plan: dm.Plan) -> list[list[int]]:
+    """Each hand's objects in the order it first grabs them."""
+    g = plan.trajectory.grasp
+    return [sorted((j for j in range(g.shape[2]) if g[:, i, j].any()),
+                   key=lambda j: int(np.argmax(g[:, i, j]))) for i in range(2)]
+
+
+def test_a_re_timed_plan_delivers_every_object_sooner_with_the_same_grasps(re_timed) -> None:
+    first, shorter = re_timed
+    scenario = seven_objects(rule=2)
+    assert shorter is not None and shorter.verified and verify(scenario, shorter).ok
+    (step,) = shorter.segments
+    assert step.shortened >= 1 and shorter.makespan == first.makespan - step.shortened
+    assert grasps(shorter) == grasps(first)  # which hand holds what, in what order: kept
+    last = shorter.trajectory
+    for j, o in enumerate(scenario.task.objects):  # every object at rest in its goal
+        assert in_goal(last.object_pos[-1, j], scenario.task.goals[o.goal])
+        assert np.allclose(last.object_vel[-1, j], 0.0)
+    # it claims nothing beyond being a plan, and keeps where it came from
+    assert step.bound == 0.0 and step.status == "feasible"
+    (own,) = first.segments
+    assert (step.sequential_row, step.sequential_steps) == (own.sequential_row,
+                                                            own.sequential_steps)
+    assert shorter.first_plan_s == first.first_plan_s
+    assert dm.Plan.from_json(shorter.to_json()).segments[0].shortened == step.shortened
+
+
+def test_no_step_comes_out_of_a_plan_at_its_proven_minimal_horizon() -> None:
+    scenario = dm.whole_task(dm.load_scenario("table1_vd", {
+        "seed": 3, "random_objects": {"count": 2}, "rule": 1, "delivery": "rest"}))
+    plan = dm.plan(scenario)
+    assert plan.horizon_proven_minimal  # so no plan is one step shorter
+    assert shortened(_whole_step(scenario), plan.trajectory.grasp,
+                     solve_options(scenario)) is None
+
+
+def test_a_stopped_search_takes_no_step_out(re_timed) -> None:
+    first, _ = re_timed
+    scenario, stop = seven_objects(rule=2), dm.Interrupt()
+    stop.set()
+    options = dataclasses.replace(solve_options(scenario), interrupt=stop)
+    assert _shortened(scenario, first, options) is None
+
+
+def test_each_removal_takes_one_step_out_of_each_hand_and_keeps_the_start() -> None:
+    grasp = np.zeros((7, 2, 2), int)
+    grasp[1:3, 0, 0] = 1  # arm 1 holds object 0 at steps 1-2
+    grasp[2:6, 1, 1] = 1  # arm 2 holds object 1 at steps 2-5: it ends later, so goes first
+    removals = list(_removals(grasp))
+    # arm 2: out of its way to object 1, its carry, or its last step (arm 1 its last); arm 1:
+    # out of its carry; both: steps 1 and 2 (the rest are schedules already given)
+    assert len(removals) == len({r.tobytes() for r in removals}) == 3 + 1 + 2
+    assert all(r.shape == (6, 2, 2) and (r[0] == grasp[0]).all() for r in removals)
+    assert removals[0][:, 1, 1].tolist() == [0, 1, 1, 1, 1, 0]  # arm 2's step 1 out
+    assert removals[0][:, 0, 0].tolist() == grasp[:6, 0, 0].tolist()  # arm 1's last out

@@ -208,6 +208,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         step = better.segments[0]
         how = ("the route-guided plan" if step.guided else
                f"sequential transportation in steps of {step.sequential_row[0]}, joined")
+        if step.shortened:
+            how += f", {step.shortened} steps taken out by re-timing the hands"
         print(f"a shorter verified plan: cost {better.total_cost:.3f}, {better.makespan} steps "
               f"({how}); searching on", flush=True)
 

@@ -119,6 +119,9 @@ class Segment:
     # A whole-task step whose plan is the route-guided program's first (planning/guided.py):
     # shorter than sequential transportation's, its cost unproven (as above)
     guided: bool = False
+    # A whole-task step whose plan is the one above (joined, or route-guided) with this many
+    # steps taken out by re-timing its hands (planning/shorten.py); its cost unproven (as above)
+    shortened: int = 0
 
     def to_json(self) -> dict:
         """The step as an entry of the plan file's ``segments`` (docs/formats.md)."""
@@ -145,6 +148,7 @@ class Segment:
             "sequential_steps": self.sequential_steps,
             "sequential_row": self.sequential_row,
             "guided": self.guided,
+            "shortened": self.shortened,
         }
 
     @property

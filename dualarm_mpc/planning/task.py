@@ -29,6 +29,7 @@ from dualarm_mpc.planning.sequential import (
     transport,
     unproven,
 )
+from dualarm_mpc.planning.shorten import shortened
 
 __all__ = ["ConflictError", "VerificationError", "first_pass", "plan", "whole_task"]
 
@@ -132,17 +133,16 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     first = _sequential_first(scenario, options, progress, on_try, on_first_plan, t0)
     if first is None:
         return _passes(scenario, options, progress, on_try, on_first_plan, t0)
-    spent = first.total_solve_time_s
-    guided = None if options.stopped() else _guided(scenario, first, options)
-    if guided is not None:
-        first, spent = guided, spent + guided.total_solve_time_s
-    larger = None
-    if not options.stopped():
+    spent, bettered = first.total_solve_time_s, False
+    for better in (_guided, _in_larger_steps, _shortened):
+        if options.stopped():
+            break
         t1 = time.perf_counter()
-        larger = _in_larger_steps(scenario, first, options)
+        found = better(scenario, first, options)
         spent += time.perf_counter() - t1
-        first = larger or first
-    if on_shorter_plan and (guided or larger):
+        if found is not None:
+            first, bettered = found, True
+    if on_shorter_plan and bettered:
         on_shorter_plan(first)
     # No horizon past the first plan's can better it: the search's cap is that horizon, and a
     # proof that none up to it has a plan contradicts the first plan.
@@ -206,6 +206,25 @@ def _in_larger_steps(scenario: Scenario, first: Plan, options: SolveOptions) -> 
     return dataclasses.replace(one, first_plan_s=first.first_plan_s)
 
 
+def _shortened(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | None:
+    """``first``, the whole task's first plan, made shorter by re-timing its hands
+    (``planning/shorten.py``) and verified, with ``first``'s marks, ``first_plan_s`` and
+    solve time added to; None where no step could be taken out."""
+    problem = _whole_step(scenario)
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    found = shortened(problem, first.trajectory.grasp, options)
+    if found is None:
+        return None
+    res, taken = found
+    (own,) = first.segments
+    plan = one_step(problem, unproven(res), own.solve_time_s + time.perf_counter() - t0,
+                    own.cpu_time_s + time.process_time() - cpu0)
+    plan = dataclasses.replace(plan, segments=[dataclasses.replace(
+        plan.segments[0], guided=own.guided, sequential_steps=own.sequential_steps,
+        sequential_row=own.sequential_row, shortened=taken)])
+    return _verified(scenario, plan, first.first_plan_s)
+
+
 def _joined(scenario: Scenario, steps: Scenario, found: Plan) -> Plan | None:
     """``found``, a complete plan of ``steps`` (the whole task ``scenario`` in sequential
     steps), joined into one step and verified as the whole task's plan; None where the joined
@@ -224,7 +243,7 @@ def _origin(whole: Plan, first: Plan) -> Plan:
     (step,), (own,) = whole.segments, first.segments
     return dataclasses.replace(whole, segments=[dataclasses.replace(
         step, guided=own.guided, sequential_steps=own.sequential_steps,
-        sequential_row=own.sequential_row)])
+        sequential_row=own.sequential_row, shortened=own.shortened)])
 
 
 def _incumbent(first: Plan) -> StepResult:
