@@ -1,30 +1,28 @@
 """The whole task in one plan against sequential transportation on the same scene (issue 53).
 
 What it measures: for n objects of ``table1_vd`` (``random_objects.count`` n, drawn from the seed),
-each rule and seed, the scene planned twice through
-:func:`dualarm_mpc.plan` (every plan verified by ``verify.py``): as one task
-(:func:`dualarm_mpc.whole_task`, ``plan --mo all``: m_o = n_o = n, one exact search over every
-object, anytime from sequential transportation's plan at ``task.FIRST_PASS`` joined into one
-step) and by sequential transportation with ``--sequential`` (m_o, n_o) (Algorithm 1, n_o at
-most n). Per plan: wall time until the first plan was verified (``first_plan_s``) and until the
-run ended (``wall_time_s``), whether the plan is the search's or still the first (``joined``:
-sequential transportation's, at (m_o, n_o) ``joined_row``: ``task.FIRST_PASS``, or
-``task.LARGER_STEPS`` where that was shorter; ``guided``: the route-guided plan,
-``planning/guided.py``),
-cost (17), the proven
-bound and gap, whether every horizon is proven minimal, the makespan (steps of Δt), the steps,
-and the skeleton search's work (``search_stats`` summed over the steps: expansions, prunes,
-programs, their wall time). What sequential transportation gives away is the difference on the
-same scene. Delivery is ``rest`` (each object at rest in its goal at the end of its step), not
-Table II's ``reach``: under ``reach`` an object may pass through its goal, and the whole plan
-then needs a second step, so it would not be one plan nor its certificate the task's. Under
-``rest`` the steps of sequential transportation, joined, are a plan of the whole task, so its
-makespan is never below the whole plan's proven-minimal horizon. A plan that outlasts
-``--run-budget`` is stopped (``stopped``): the best complete plan so far is the record's, with
-its gap (the whole task's first plan where the search found none better; under rule 2 the
-sequential plan's first pass, each step's no-throw witness, docs/search.md); without a complete
-plan the run is counted apart. Records written before the whole task's first plan (2026-12-06)
-have no ``joined``: their plans are the search's, and their first plan its.
+each rule and seed, the scene planned twice through :func:`dualarm_mpc.plan` (every plan verified
+by ``verify.py``): as one task (:func:`dualarm_mpc.whole_task`, ``plan --mo all``: m_o = n_o = n,
+one exact search over every object, anytime from sequential transportation's plan at
+``task.FIRST_PASS`` joined into one step) and by sequential transportation with ``--sequential``
+(m_o, n_o) (Algorithm 1, n_o at most n). Per plan: wall time until the first plan was verified
+(``first_plan_s``) and until the run ended (``wall_time_s``), whether the plan is the search's or
+still the first (``joined``: sequential transportation's, at (m_o, n_o) ``joined_row``:
+``task.FIRST_PASS``, or ``task.LARGER_STEPS`` where that was shorter; ``guided``: the route-guided
+plan, ``planning/guided.py``; ``shortened``: the steps taken out of either by re-timing its hands,
+``planning/shorten.py``), cost (17), the proven bound and gap, whether every horizon is proven
+minimal, the makespan (steps of Δt), the steps, and the skeleton search's work (``search_stats``
+summed over the steps: expansions, prunes, programs, their wall time). What sequential
+transportation gives away is the difference on the same scene. Delivery is ``rest`` (each object at
+rest in its goal at the end of its step), not Table II's ``reach``: under ``reach`` an object may
+pass through its goal, and the whole plan then needs a second step, so it would not be one plan nor
+its certificate the task's. Under ``rest`` the steps of sequential transportation, joined, are a
+plan of the whole task, so its makespan is never below the whole plan's proven-minimal horizon. A
+plan that outlasts ``--run-budget`` is stopped (``stopped``): the best complete plan so far is the
+record's, with its gap (the whole task's first plan where the search found none better; under rule
+2 the sequential plan's first pass, each step's no-throw witness, docs/search.md); without a
+complete plan the run is counted apart. Records written before the whole task's first plan
+(2026-12-06) have no ``joined``: their plans are the search's, and their first plan its.
 
 Run it (from the repository root)::
 

@@ -16,8 +16,8 @@ the hands can still do it — the dynamics, eq. (16) between the hands, the spec
 at what least cost. The first removal that has a plan is taken, and the next one tried from
 it, until none has. Each schedule is a restriction of the whole task (η fixed), so each plan
 found is a plan of the whole task: its horizon no shorter than the task's minimal one, its
-cost unproven. On §V-D's ten objects it takes 0–3 steps out of sequential transportation's
-plans in steps of four, and 2–4 under rule 2 (docs/search.md, "The anytime plan")."""
+cost unproven. What it takes out of §V-D's plans, and what was tried beside it:
+docs/search.md, "The anytime plan"."""
 
 from __future__ import annotations
 

@@ -96,11 +96,12 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     Of the whole task (:func:`whole_task`), the first is sequential transportation's at
     ``FIRST_PASS``, joined into one step (:meth:`~dualarm_mpc.model.plan.Plan.as_one_step`), or
     the route-guided plan (:mod:`~dualarm_mpc.planning.guided`) or sequential transportation at
-    ``LARGER_STEPS``, joined, where that is shorter, and
-    the whole-task search's plan replaces it where it is proven (optimal at a proven-minimal
-    horizon), or its makespan is shorter, or as short and cheaper; at the first plan's horizon
-    the search starts from it (its incumbent), and where it betters nothing the first plan
-    stays, with the search's certificate. Within it, and for every
+    ``LARGER_STEPS``, joined, where that is shorter, then re-timed where steps come out of it
+    (:mod:`~dualarm_mpc.planning.shorten`), and the whole-task search's plan replaces it where
+    it is proven (optimal at a proven-minimal horizon), or its makespan is shorter, or as short
+    and cheaper; at the first plan's horizon the search starts from it (its incumbent), and
+    where it betters nothing the first plan stays, with the search's certificate. Within it,
+    and for every
     other task, where the rules allow throws the first is each step's no-throw witness, then
     Algorithm 1 by the horizon policy, which takes every search of the first pass it meets
     again, and the cheaper complete plan is returned. Where neither applies (rule 1, or no
@@ -109,10 +110,10 @@ def plan(scenario: Scenario, *, check_first: bool = True,
     ``check_first``: run the consistency check (without its joint step) first and raise
     :class:`ConflictError` on a conflict. ``progress`` hears of each sequential step of each
     pass, ``on_try`` of each horizon tried, ``on_first_plan`` of the first verified plan when a
-    search follows it, ``on_shorter_plan`` of a whole task's route-guided plan or plan in
-    ``LARGER_STEPS`` where it takes the first plan's place, before the search. ``stop``, once
-    set (from another thread), ends the search: the best complete plan so far, or else the
-    steps planned so far as a partial plan (``partial``), not verified.
+    search follows it, ``on_shorter_plan`` of a whole task's route-guided plan, plan in
+    ``LARGER_STEPS`` or re-timed plan where it takes the first plan's place, before the search.
+    ``stop``, once set (from another thread), ends the search: the best complete plan so far,
+    or else the steps planned so far as a partial plan (``partial``), not verified.
 
     Raises :class:`~dualarm_mpc.planning.sequential.PlanningError` when a step has no plan
     (``proven``: none exists up to the horizon cap) and no complete plan exists,
