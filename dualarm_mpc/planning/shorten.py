@@ -6,7 +6,7 @@ for the step's slower hand: the next step starts only when every object of this 
 delivered. The whole task has no seams, and the search that would close them (the skeleton
 search over every object) finds no plan within a run's budget from seven objects on. But with
 the plan's grasp schedule fixed — η_ij(k) for every hand, object and step — the MILP of a
-horizon is linear in the forces and states (eqs. 1, 8–11, 14–16), its few binaries left the
+horizon is linear in the forces and states (eqs. 1, 7–11, 14–16), its few binaries left the
 goal indicators θ (13) and the rules' encoding: on ten objects it is solved in about 0.1 s.
 
 Taking step p out of hand i's timeline moves every grasp of hand i after p one step earlier (a
