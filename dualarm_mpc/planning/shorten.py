@@ -76,8 +76,9 @@ def _removals(grasp: np.ndarray) -> Iterator[np.ndarray]:
     seen = set()
     for removal in removals:
         schedule = _without(grasp, removal)
-        if schedule.tobytes() not in seen:
-            seen.add(schedule.tobytes())
+        key = schedule.tobytes()
+        if key not in seen:
+            seen.add(key)
             yield schedule
 
 

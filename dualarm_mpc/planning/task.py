@@ -179,11 +179,8 @@ def _guided(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | No
     found = guided_plan(problem, first.makespan, options)
     if found is None:
         return None
-    plan = one_step(problem, unproven(found), time.perf_counter() - t0,
-                    time.process_time() - cpu0)
-    plan = dataclasses.replace(plan, segments=[dataclasses.replace(plan.segments[0],
-                                                                   guided=True)])
-    return _verified(scenario, plan, first.first_plan_s)
+    return _whole_plan(scenario, problem, found, time.perf_counter() - t0,
+                       time.process_time() - cpu0, first, guided=True)
 
 
 def _in_larger_steps(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan | None:
@@ -218,12 +215,26 @@ def _shortened(scenario: Scenario, first: Plan, options: SolveOptions) -> Plan |
         return None
     res, taken = found
     (own,) = first.segments
-    plan = one_step(problem, unproven(res), own.solve_time_s + time.perf_counter() - t0,
-                    own.cpu_time_s + time.process_time() - cpu0)
-    plan = dataclasses.replace(plan, segments=[dataclasses.replace(
-        plan.segments[0], guided=own.guided, sequential_steps=own.sequential_steps,
-        sequential_row=own.sequential_row, shortened=taken)])
+    return _whole_plan(scenario, problem, res, own.solve_time_s + time.perf_counter() - t0,
+                       own.cpu_time_s + time.process_time() - cpu0, first,
+                       **{**_marks(own), "shortened": taken})
+
+
+def _whole_plan(scenario: Scenario, problem: StepProblem, found: StepResult, wall_s: float,
+                cpu_s: float, first: Plan, **marks) -> Plan:
+    """``found``, a plan of the whole step ``problem`` made outside the search, as the whole
+    task's plan: its cost unproven, ``marks`` on its step (:func:`_marks`), verified, with
+    ``first``'s ``first_plan_s``."""
+    plan = one_step(problem, unproven(found), wall_s, cpu_s)
+    plan = dataclasses.replace(plan, segments=[dataclasses.replace(plan.segments[0], **marks)])
     return _verified(scenario, plan, first.first_plan_s)
+
+
+def _marks(step: Segment) -> dict:
+    """Where a whole-task step's plan came from, as ``Segment`` fields: joined sequential
+    steps, the route-guided plan, steps taken out."""
+    return {"guided": step.guided, "sequential_steps": step.sequential_steps,
+            "sequential_row": step.sequential_row, "shortened": step.shortened}
 
 
 def _joined(scenario: Scenario, steps: Scenario, found: Plan) -> Plan | None:
@@ -242,9 +253,7 @@ def _origin(whole: Plan, first: Plan) -> Plan:
             not np.array_equal(whole.trajectory.force, first.trajectory.force):
         return whole
     (step,), (own,) = whole.segments, first.segments
-    return dataclasses.replace(whole, segments=[dataclasses.replace(
-        step, guided=own.guided, sequential_steps=own.sequential_steps,
-        sequential_row=own.sequential_row, shortened=own.shortened)])
+    return dataclasses.replace(whole, segments=[dataclasses.replace(step, **_marks(own))])
 
 
 def _incumbent(first: Plan) -> StepResult:
