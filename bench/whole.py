@@ -185,7 +185,7 @@ def makespan(r: dict) -> str:
 def origin(r: dict) -> str:
     """Whose the whole plan is: the search's, or still a first plan's."""
     taken = r.get("shortened")  # not in records before planning/shorten.py
-    shortened = f", {taken} steps out" if taken else ""
+    shortened = f", re-timed (−{taken} Δt)" if taken else ""
     if r.get("joined"):
         row = r.get("joined_row")  # not in records before task.LARGER_STEPS
         return ("sequential's, joined" if row is None else

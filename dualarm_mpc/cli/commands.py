@@ -209,7 +209,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         how = ("the route-guided plan" if step.guided else
                f"sequential transportation in steps of {step.sequential_row[0]}, joined")
         if step.shortened:
-            how += f", {step.shortened} steps taken out by re-timing the hands"
+            how += f", re-timed: {step.shortened} Δt shorter"
         print(f"a shorter verified plan: cost {better.total_cost:.3f}, {better.makespan} steps "
               f"({how}); searching on", flush=True)
 
